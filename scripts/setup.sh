@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Creates .venv (Python >= 3.10) and installs scan2terrain into it, editable.
+#   bash scripts/setup.sh          runtime dependencies only
+#   bash scripts/setup.sh test     plus the test tools, and the Debian packages that hold Gazebo's
+#                                  own code (SDFormat, gz-common) used by the integration tests
+set -euo pipefail
+cd "$(dirname "$0")/.."
+extra="${1:-}"
+
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; elif command -v sudo >/dev/null; then sudo "$@"; else
+  echo "setup: need root to run: $*" >&2; return 1; fi; }
+apt_install() {
+  export DEBIAN_FRONTEND=noninteractive
+  as_root apt-get update -qq && as_root apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+
+PY="${PYTHON:-python3}"
+if ! "$PY" -c 'import sys; assert sys.version_info >= (3, 10)' 2>/dev/null; then
+  echo "setup: need Python >= 3.10 as '$PY' (set PYTHON=...)" >&2; exit 2
+fi
+if [ ! -x .venv/bin/python ]; then
+  if ! "$PY" -m venv .venv 2>/dev/null; then
+    rm -rf .venv
+    # Debian's Python keeps venv in a separate package.
+    ver=$("$PY" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')
+    apt_install "python${ver}-venv"
+    "$PY" -m venv .venv
+  fi
+fi
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+if [ "$extra" = "test" ]; then
+  need=()
+  for pc in sdformat12 ignition-common4-graphics; do
+    pkg-config --exists "$pc" 2>/dev/null || need+=(x)
+  done
+  if [ "${#need[@]}" -gt 0 ] || ! command -v g++ >/dev/null; then
+    apt_install libsdformat-dev libignition-common-graphics-dev pkg-config g++
+  fi
+  .venv/bin/python -m pip install -q -e ".[test]"
+else
+  .venv/bin/python -m pip install -q -e .
+fi

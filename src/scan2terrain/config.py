@@ -1,0 +1,221 @@
+"""One typed configuration for every command, with defaults that match the references.
+
+Layers, later wins: built-in defaults < a YAML config file (``--config``) < command-line flags.
+The effective configuration is written beside every output as ``scan2terrain.yaml`` so a run can be
+repeated with ``--config OUT/scan2terrain.yaml``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, get_type_hints
+
+from scan2terrain.errors import ConfigError
+
+FILTERS = ("none", "median", "majority", "paper", "thin_wall")
+UNKNOWN_POLICIES = ("free", "obstacle", "height")
+SIMULATORS = ("gz", "classic", "both")
+
+
+@dataclass
+class CanvasConfig:
+    """The paper's canvas options, in cells of the input grid.
+
+    ``width``/``height`` crop or extend the grid to that many cells (None keeps the size);
+    ``offset_x``/``offset_y`` shift the input inside that canvas (positive moves it right/up, a
+    negative offset crops). The origin is updated so every kept cell stays where it was in the map
+    frame: cropping never loses the georeferencing.
+    """
+
+    width: int | None = None
+    height: int | None = None
+    offset_x: int = 0
+    offset_y: int = 0
+    invert: bool = False
+
+
+@dataclass
+class FilterConfig:
+    """Filtering of the occupancy grid (or the grey image) before it becomes terrain."""
+
+    enabled: bool = True
+    #: none | median | majority | paper (the paper's modified median) | thin_wall (also diagonals)
+    kind: str = "thin_wall"
+    #: Window side for median/majority (odd, >= 3); paper/thin_wall always use 3x3.
+    size: int = 3
+    #: Remove occupied specks of fewer cells than this (8-connected) after filtering; 0 = off.
+    speckle_min_cells: int = 0
+
+
+@dataclass
+class TerrainConfig:
+    """How cells become ground heights and pixels."""
+
+    #: Height of occupied cells (maps) or of a white pixel (images), metres.
+    height: float = 2.0
+    #: free | obstacle | height: unknown cells as floor, as walls, or at ``unknown_height``.
+    unknown: str = "free"
+    unknown_height: float = 0.5
+    #: Integer up-sampling: each cell becomes k x k pixels (thin walls get flat tops).
+    upsample: int = 1
+    #: 8 (every Gazebo) or 16 (gz-sim Garden and newer).
+    bit_depth: int = 8
+
+
+@dataclass
+class WorldConfig:
+    """The Gazebo side."""
+
+    #: gz (gz-sim, SDF 1.9, DART + bullet collision detector) | classic (Gazebo 11, SDF 1.6)
+    #: | both (two worlds side by side, one model folder each).
+    simulator: str = "both"
+    #: Model name; None derives a unique one from the input name and the terrain's content.
+    model_name: str | None = None
+    #: Vertex sampling written into the SDF (None: 1 for gz, 2 for classic, each one's default).
+    sampling: int | None = None
+
+
+@dataclass
+class OutputConfig:
+    preview: bool = True
+    map_yaml: bool = True
+
+
+@dataclass
+class ImageConfig:
+    """Inputs that carry no geometry of their own (image2world)."""
+
+    #: Metres per pixel.
+    resolution: float = 0.05
+    #: Pose [x, y, yaw] of the image's lower-left corner; None centres it on the origin.
+    origin: list[float] | None = None
+
+
+@dataclass
+class Config:
+    canvas: CanvasConfig = field(default_factory=CanvasConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    image: ImageConfig = field(default_factory=ImageConfig)
+    #: Refuse images with more pixels than this (decompression bombs).
+    max_pixels: int = 1 << 28
+
+    def validate(self) -> Config:
+        """Raise :class:`ConfigError` naming the first bad value; return self."""
+        c = self
+        _check(c.filter.kind in FILTERS, "filter.kind", c.filter.kind, f"one of {FILTERS}")
+        _check(c.filter.size >= 3 and c.filter.size % 2 == 1, "filter.size", c.filter.size, "odd >= 3")
+        _check(c.filter.speckle_min_cells >= 0, "filter.speckle_min_cells",
+               c.filter.speckle_min_cells, ">= 0")
+        _check(c.terrain.height > 0, "terrain.height", c.terrain.height, "> 0 metres")
+        _check(c.terrain.unknown in UNKNOWN_POLICIES, "terrain.unknown", c.terrain.unknown,
+               f"one of {UNKNOWN_POLICIES}")
+        _check(c.terrain.unknown_height >= 0, "terrain.unknown_height", c.terrain.unknown_height,
+               ">= 0 metres")
+        _check(1 <= c.terrain.upsample <= 16, "terrain.upsample", c.terrain.upsample, "1..16")
+        _check(c.terrain.bit_depth in (8, 16), "terrain.bit_depth", c.terrain.bit_depth, "8 or 16")
+        _check(c.world.simulator in SIMULATORS, "world.simulator", c.world.simulator,
+               f"one of {SIMULATORS}")
+        _check(c.world.sampling is None or c.world.sampling >= 1, "world.sampling",
+               c.world.sampling, ">= 1")
+        name = c.world.model_name
+        _check(name is None or (name.replace("_", "").replace("-", "").isalnum()),
+               "world.model_name", name, "letters, digits, '_' and '-' only")
+        _check(c.image.resolution > 0, "image.resolution", c.image.resolution, "> 0 m/pixel")
+        _check(c.image.origin is None or len(c.image.origin) in (2, 3), "image.origin",
+               c.image.origin, "[x, y] or [x, y, yaw]")
+        _check(c.canvas.width is None or c.canvas.width > 0, "canvas.width", c.canvas.width, "> 0")
+        _check(c.canvas.height is None or c.canvas.height > 0, "canvas.height",
+               c.canvas.height, "> 0")
+        _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _check(ok: bool, name: str, value: object, want: str) -> None:
+    if not ok:
+        raise ConfigError(f"config value {name} = {value!r} is invalid: must be {want}")
+
+
+def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Defaults, then the YAML file at ``path``, then ``overrides`` ({"section.key": value})."""
+    import yaml
+
+    cfg = Config()
+    if path is not None:
+        try:
+            doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: config file not found") from None
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: malformed config YAML ({type(exc).__name__})") from None
+        if doc is not None:
+            if not isinstance(doc, dict):
+                raise ConfigError(f"{path}: config must be a mapping of sections")
+            _apply(cfg, doc, str(path))
+    for dotted, value in (overrides or {}).items():
+        if value is None:
+            continue
+        _apply(cfg, _nest(dotted, value), "command line")
+    return cfg.validate()
+
+
+def _nest(dotted: str, value: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    cur = out
+    parts = dotted.split(".")
+    for p in parts[:-1]:
+        cur[p] = {}
+        cur = cur[p]
+    cur[parts[-1]] = value
+    return out
+
+
+def _apply(target: Any, doc: dict[str, Any], source: str, prefix: str = "") -> None:
+    hints = get_type_hints(type(target))
+    names = {f.name for f in fields(target)}
+    for key, value in doc.items():
+        where = f"{prefix}{key}"
+        if key not in names:
+            raise ConfigError(f"{source}: unknown config key '{where}' (known: {sorted(names)})")
+        current = getattr(target, key)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{source}: '{where}' must be a mapping")
+            _apply(current, value, source, f"{where}.")
+        else:
+            setattr(target, key, _coerce(value, hints[key], where, source))
+
+
+def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
+    text = str(hint)
+    if value is None:
+        if "None" in text:
+            return None
+        raise ConfigError(f"{source}: '{where}' may not be empty")
+    try:
+        if "bool" in text:
+            if isinstance(value, bool):
+                return value
+            raise TypeError
+        if "list[float]" in text:
+            return [float(v) for v in value]
+        if "int" in text:
+            if isinstance(value, bool) or float(value) != int(value):
+                raise TypeError
+            return int(value)
+        if "float" in text:
+            if isinstance(value, bool):
+                raise TypeError
+            return float(value)
+        if "str" in text:
+            return str(value)
+    except (TypeError, ValueError):
+        pass
+    raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r}; expected {text})")

@@ -1,0 +1,31 @@
+"""One root error for the project, one subclass per stage.
+
+The CLI catches :class:`Scan2TerrainError` only, prints its message as one line and exits 2.
+Errors about files also inherit the matching builtin, as rasterio does, so callers that catch
+``OSError`` or ``ValueError`` keep working.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class Scan2TerrainError(Exception):
+    """Root of every error scan2terrain raises on purpose."""
+
+
+class InputError(Scan2TerrainError, ValueError):
+    """An input file or value is unusable. The message names the file and the problem."""
+
+    def __init__(self, path: Path | str | None, problem: str) -> None:
+        self.path = None if path is None else Path(path)
+        self.problem = problem
+        super().__init__(f"{path}: {problem}" if path is not None else problem)
+
+
+class ConfigError(Scan2TerrainError, ValueError):
+    """A configuration value is out of range or unknown."""
+
+
+class OutputError(Scan2TerrainError, OSError):
+    """An output cannot be written (exists without --overwrite, not writable)."""

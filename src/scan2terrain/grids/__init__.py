@@ -1,0 +1,11 @@
+"""Grids: building and reshaping occupancy and height grids.
+
+``transform`` holds the geometric operations on any grid-ordered array (crop/extend, rotate into
+the world's axes, up-sample); ``occupancy`` turns map values into the three classes the terrain
+needs.
+"""
+
+from scan2terrain.grids.occupancy import invert_occupancy, to_trinary
+from scan2terrain.grids.transform import axis_align, canvas, upsample
+
+__all__ = ["axis_align", "canvas", "invert_occupancy", "to_trinary", "upsample"]

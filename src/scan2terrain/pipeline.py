@@ -1,0 +1,255 @@
+"""Named steps composed into the commands. Only this module and cli.py know every stage.
+
+map2world:   read map YAML -> classify -> canvas/invert -> filter -> align to world axes
+             -> heights (unknown policy) -> heightmap -> model + world per simulator, map, preview
+image2world: read image -> luminance -> canvas/invert -> filter -> align -> heights -> ... (same)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.exporters import mapserver as map_export
+from scan2terrain.exporters import sdf
+from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap, make_heightmap
+from scan2terrain.exporters.output import OutputDir, atomic_output
+from scan2terrain.exporters.preview import preview_png
+from scan2terrain.filters import (
+    majority_filter,
+    median_filter,
+    paper_median_filter,
+    remove_speckles,
+    thin_wall_median_filter,
+)
+from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
+from scan2terrain.grids import axis_align, canvas, invert_occupancy, to_trinary, upsample
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+
+#: Ranks used while filtering occupancy, so that unknown sits between free and occupied.
+_RANK_OF = {FREE: 0, UNKNOWN: 1, OCCUPIED: 2}
+WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
+CONFIG_FILE = "scan2terrain.yaml"
+
+
+@dataclass(frozen=True)
+class WorldOutput:
+    """One simulator's world inside the output folder."""
+
+    placement: sdf.Placement
+    world: Path
+    models: Path
+    map_yaml: Path | None
+
+
+@dataclass
+class Result:
+    """What a command wrote, for the CLI to report."""
+
+    out: Path
+    worlds: list[WorldOutput] = field(default_factory=list)
+    heightmap_side: int = 0
+    resolution: float = 0.0
+    size_z: float = 0.0
+    preview: Path | None = None
+    config: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+# --- steps -----------------------------------------------------------------------------------
+
+
+def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]:
+    """Apply the configured filter and speckle removal to a trinary grid."""
+    f = cfg.filter
+    if not f.enabled or (f.kind == "none" and f.speckle_min_cells <= 1):
+        return trinary
+    rank = np.full(trinary.shape, _RANK_OF[UNKNOWN], dtype=np.uint8)
+    rank[trinary == FREE] = _RANK_OF[FREE]
+    rank[trinary == OCCUPIED] = _RANK_OF[OCCUPIED]
+    rank = _apply_filter(rank, f.kind, f.size, fallback="majority")
+    if f.speckle_min_cells > 1:
+        rank = remove_speckles(
+            rank, value=_RANK_OF[OCCUPIED], min_cells=f.speckle_min_cells, replace_with=_RANK_OF[FREE]
+        )
+    return np.array([FREE, UNKNOWN, OCCUPIED], dtype=np.int8)[rank]
+
+
+def filter_grey(values: NDArray[np.uint8] | NDArray[np.uint16], cfg: Config) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """Apply the configured filter to a grey image (median fallback: greys are ordered)."""
+    f = cfg.filter
+    if not f.enabled or f.kind == "none":
+        return values
+    return _apply_filter(values, f.kind, f.size, fallback="median")
+
+
+def _apply_filter(a, kind: str, size: int, *, fallback: str):  # type: ignore[no-untyped-def]
+    if kind == "median":
+        return median_filter(a, size=size)
+    if kind == "majority":
+        return majority_filter(a, size=size)
+    if kind == "paper":
+        return paper_median_filter(a, fallback=fallback)
+    if kind == "thin_wall":
+        return thin_wall_median_filter(a, fallback=fallback)
+    return a
+
+
+def classify(grid: OccupancyGrid, mode: str, occupied_thresh: float, free_thresh: float) -> NDArray[np.int8]:
+    """map_server values to trinary; raw maps are classified with their own thresholds."""
+    if mode == "raw":
+        return to_trinary(grid.data, occupied_above=100 * occupied_thresh, free_below=100 * free_thresh)
+    return to_trinary(grid.data)
+
+
+# --- commands --------------------------------------------------------------------------------
+
+
+def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
+    """A map_server map (YAML + image) to a Gazebo world folder. See the module docstring."""
+    from scan2terrain.readers import read_map_yaml
+
+    _refuse_existing(out, overwrite)
+    meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
+    trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
+    c = cfg.canvas
+    trinary, origin = canvas(
+        trinary, grid.origin, grid.resolution, width=c.width, height=c.height,
+        offset_x=c.offset_x, offset_y=c.offset_y, fill=UNKNOWN,
+    )
+    if c.invert:
+        trinary = invert_occupancy(trinary)
+    filtered = filter_occupancy(trinary, cfg)
+
+    aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
+    t = cfg.terrain
+    fine, fine_res = upsample(aligned, grid.resolution, t.upsample)
+    heights = occupancy_to_heights(fine, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height)
+    pad = unknown_level(t.unknown, wall_height=t.height, unknown_height=t.unknown_height)
+    hm = make_heightmap(
+        HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
+        bit_depth=t.bit_depth, pad_height=pad,
+    )
+    levels = (0.0, pad, t.height)
+    map_out = OccupancyGrid(aligned, grid.resolution, world_origin)
+    return _write(out, cfg, overwrite, Path(yaml_path), hm, levels, map_out,
+                  preview_png(trinary, filtered, occupancy=True))
+
+
+def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
+    """Any image to a Gazebo world folder: luminance is height, white is ``terrain.height``."""
+    from scan2terrain.readers import read_grey_image
+
+    _refuse_existing(out, overwrite)
+    img = read_grey_image(image_path, max_pixels=cfg.max_pixels)
+    values = np.ascontiguousarray(np.flipud(img.values))
+    res = cfg.image.resolution
+    rows, cols = values.shape
+    if cfg.image.origin is None:
+        origin = Pose2D(-cols * res / 2, -rows * res / 2, 0.0)
+    else:
+        o = cfg.image.origin
+        origin = Pose2D(o[0], o[1], o[2] if len(o) > 2 else 0.0)
+    c = cfg.canvas
+    values, origin = canvas(values, origin, res, width=c.width, height=c.height,
+                            offset_x=c.offset_x, offset_y=c.offset_y, fill=0)
+    if c.invert:
+        values = (img.max_value - values).astype(values.dtype)
+    filtered = filter_grey(values, cfg)
+    aligned, world_origin = axis_align(filtered, origin, res, fill=0)
+    t = cfg.terrain
+    fine, fine_res = upsample(aligned, res, t.upsample)
+    heights = (fine.astype(np.float32) * np.float32(t.height / img.max_value)).astype(np.float32)
+    hm = make_heightmap(
+        HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
+        bit_depth=t.bit_depth, pad_height=0.0,
+    )
+    top = float(heights.max(initial=0.0))
+    levels = (0.0, top / 2, top)
+    return _write(out, cfg, overwrite, Path(image_path), hm, levels, None,
+                  preview_png(values, filtered, occupancy=False))
+
+
+# --- writing ---------------------------------------------------------------------------------
+
+
+def _refuse_existing(out: Path, overwrite: bool) -> None:
+    # Checked before any work so a refused run costs nothing; OutputDir checks again.
+    OutputDir.check_target(out, overwrite)
+
+
+def model_name_for(source: Path, png: bytes, cfg: Config) -> str:
+    """A readable, unique, deterministic name: input stem + digest of the terrain and options.
+
+    Gazebo Classic caches terrain by model name (~/.gazebo/paging/<name>); a new terrain must never
+    reuse the name of an old one.
+    """
+    if cfg.world.model_name:
+        return cfg.world.model_name
+    stem = re.sub(r"[^A-Za-z0-9]+", "_", source.stem).strip("_").lower() or "terrain"
+    digest = hashlib.sha256(png + repr(cfg.to_dict()).encode()).hexdigest()[:8]
+    return f"{stem}_{digest}"
+
+
+def _write(
+    out: Path, cfg: Config, overwrite: bool, source: Path, hm: Heightmap,
+    levels: tuple[float, float, float], map_out: OccupancyGrid | None, preview: bytes,
+) -> Result:
+    import yaml
+
+    png = hm.png()
+    base_name = model_name_for(source, png, cfg)
+    sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
+    result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
+    with atomic_output(out, overwrite=overwrite) as od:
+        pgm_name = "map.pgm"
+        if map_out is not None and cfg.output.map_yaml:
+            od.write(f"map/{pgm_name}", map_export.map_pgm(map_out))
+        for sim in sims:
+            name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
+            p = sdf.placement_for(hm, sim, name, cfg.world.sampling)
+            comment = _comment(source, hm, p)
+            mdir = f"models/{name}"
+            od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}", png)
+            if sim == GZ:
+                for fname, data in sdf.texture_pngs().items():
+                    od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
+            od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
+            od.write(f"{mdir}/model.config", sdf.model_config(p, f"Terrain from {source.name}"))
+            world = od.write(WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment))
+            map_yaml = None
+            if map_out is not None and cfg.output.map_yaml:
+                shifted = map_out.with_data(map_out.data, Pose2D(
+                    map_out.origin.x - p.offset[0], map_out.origin.y - p.offset[1], 0.0))
+                map_yaml = od.write(f"map/map_{sim}.yaml", map_export.map_yaml(
+                    shifted, pgm_name, comment=f"Filtered map in the {sim} world frame.\n{comment}"))
+            result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
+        if cfg.output.preview:
+            result.preview = od.write("preview.png", preview)
+        result.config = od.write(CONFIG_FILE, yaml.safe_dump(
+            {"source": str(source), **cfg.to_dict()}, sort_keys=False).encode())
+    return result
+
+
+def _comment(source: Path, hm: Heightmap, p: sdf.Placement) -> str:
+    lines = [
+        f" Generated by scan2terrain from {source.name}.",
+        f" Heightmap {hm.side}x{hm.side} px, {hm.resolution!r} m/px, heights {hm.z_min!r}"
+        f" .. {hm.z_min + hm.z_range!r} m (size.z = height of the brightest pixel).",
+    ]
+    if p.simulator == GZ:
+        lines.append(" gz-sim: map frame (x, y) = world (x, y). Collision <pose> and visual <pos>"
+                     " carry the offset (gz-sim #1295, #1803).")
+    else:
+        lines.append(
+            " Gazebo Classic keeps heightmaps at the world origin (#2167): map point (x, y) is"
+            f" world (x - {p.offset[0]!r}, y - {p.offset[1]!r}). Spawn the robot there, or use"
+            " map/map_classic.yaml, which is already shifted."
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,165 @@
+"""ROS map_server maps: a YAML file plus an image, read exactly as nav2's map_server does.
+
+Reference: nav2 ``nav2_map_server/src/map_io.cpp`` (``loadMapYaml`` and ``loadMapFromFile``):
+
+* ``shade`` is the mean of R, G and B in [0, 1]; in trinary mode an alpha channel is averaged in
+  as a fourth channel (opaque = 1), as map_server does "to preserve existing behaviour".
+* ``occ = shade if negate else 1 - shade``.
+* trinary: ``occ > occupied_thresh`` -> 100, ``occ < free_thresh`` -> 0, else -1.
+* scale: a non-opaque pixel -> -1, then as trinary, with the values in between mapped to
+  ``rint(100 * (occ - free) / (occupied - free))``.
+* raw: ``round(255 * shade)`` when it lies in 0..100, else -1 (negate is not applied).
+* Image row y becomes grid row H - 1 - y (row 0 of the grid is the map's lowest y).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, Channels, open_pixels
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
+
+MODES = ("trinary", "scale", "raw")
+
+
+@dataclass(frozen=True)
+class MapMetadata:
+    """The fields of a map_server YAML, validated. Paths are absolute."""
+
+    yaml_path: Path
+    image: Path
+    resolution: float
+    origin: Pose2D
+    negate: bool
+    occupied_thresh: float
+    free_thresh: float
+    mode: str
+
+
+def read_map_yaml(
+    path: Path, *, max_pixels: int = DEFAULT_MAX_PIXELS
+) -> tuple[MapMetadata, OccupancyGrid]:
+    """Read a map_server YAML and its image into an :class:`OccupancyGrid`.
+
+    Raises
+    ------
+    InputError
+        Naming the YAML or image file and the problem, for every malformed input.
+    """
+    meta = read_map_metadata(path)
+    channels = open_pixels(meta.image, max_pixels)
+    data = occupancy_from_pixels(channels, meta)
+    return meta, OccupancyGrid(np.ascontiguousarray(np.flipud(data)), meta.resolution, meta.origin)
+
+
+def read_map_metadata(path: Path) -> MapMetadata:
+    """Parse and validate the YAML half of a map_server map."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "map YAML file not found")
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        where = ""
+        mark = getattr(exc, "problem_mark", None)
+        if mark is not None:
+            where = f" at line {mark.line + 1}, column {mark.column + 1}"
+        raise InputError(path, f"malformed YAML{where}") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not a text file (expected a map_server YAML)") from None
+    if not isinstance(doc, dict):
+        raise InputError(path, "expected a map_server YAML mapping with image, resolution, origin")
+
+    image_field = _required(doc, "image", path)
+    if not isinstance(image_field, str) or not image_field.strip():
+        raise InputError(path, "'image' must be a file name")
+    image = Path(image_field).expanduser()
+    if not image.is_absolute():
+        image = (path.resolve().parent / image).resolve()
+
+    resolution = _number(doc, "resolution", path)
+    if not resolution > 0:
+        raise InputError(path, f"'resolution' must be > 0 metres per pixel, got {resolution}")
+
+    origin_field = _required(doc, "origin", path)
+    if not isinstance(origin_field, list) or len(origin_field) not in (2, 3):
+        raise InputError(path, "'origin' must be a list [x, y, yaw]")
+    try:
+        ox, oy, *rest = (float(v) for v in origin_field)
+    except (TypeError, ValueError):
+        raise InputError(path, "'origin' must hold numbers [x, y, yaw]") from None
+    yaw = rest[0] if rest else 0.0
+    if not all(math.isfinite(v) for v in (ox, oy, yaw)):
+        raise InputError(path, "'origin' must hold finite numbers")
+
+    negate_field = doc.get("negate", 0)
+    if isinstance(negate_field, bool) or negate_field in (0, 1):
+        negate = bool(negate_field)
+    else:
+        raise InputError(path, f"'negate' must be 0, 1, true or false, got {negate_field!r}")
+
+    occ = _number(doc, "occupied_thresh", path)
+    free = _number(doc, "free_thresh", path)
+    if not 0.0 <= free < occ <= 1.0:
+        raise InputError(
+            path,
+            f"thresholds out of order: need 0 <= free_thresh ({free}) < occupied_thresh ({occ}) <= 1",
+        )
+
+    mode_field = doc.get("mode", "trinary")
+    mode = str(mode_field).strip().lower()
+    if mode not in MODES:
+        raise InputError(path, f"'mode' must be one of {', '.join(MODES)}, got {mode_field!r}")
+
+    return MapMetadata(path, image, resolution, Pose2D(ox, oy, yaw), negate, occ, free, mode)
+
+
+def occupancy_from_pixels(channels: Channels, meta: MapMetadata) -> NDArray[np.int8]:
+    """Pixel samples (top row first) to occupancy values -1/0..100, top row first."""
+    full = float(channels.max_value)
+    if meta.mode == "trinary" and channels.alpha is not None:
+        # map_server averages alpha in as a fourth channel in trinary mode.
+        shade = (channels.mean_colour() * 3.0 + channels.alpha / full) / 4.0
+    else:
+        shade = channels.mean_colour()
+
+    if meta.mode == "raw":
+        percent = np.floor(shade * 255.0 + 0.5)  # std::round, half away from zero (>= 0 here)
+        inside = percent <= OCCUPIED
+        return np.where(inside, percent, UNKNOWN).astype(np.int8)
+
+    occ = shade if meta.negate else 1.0 - shade
+    out = np.full(occ.shape, UNKNOWN, dtype=np.int8)
+    if meta.mode == "scale":
+        between = (occ >= meta.free_thresh) & (occ <= meta.occupied_thresh)
+        scaled = np.rint((occ - meta.free_thresh) / (meta.occupied_thresh - meta.free_thresh) * 100)
+        out[between] = scaled[between].astype(np.int8)
+    out[occ > meta.occupied_thresh] = OCCUPIED
+    out[occ < meta.free_thresh] = FREE
+    if meta.mode == "scale" and channels.alpha is not None:
+        out[channels.alpha != channels.max_value] = UNKNOWN
+    return out
+
+
+def _required(doc: dict[str, Any], key: str, path: Path) -> Any:
+    if key not in doc:
+        raise InputError(path, f"missing required key '{key}'")
+    return doc[key]
+
+
+def _number(doc: dict[str, Any], key: str, path: Path) -> float:
+    value = _required(doc, key, path)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(path, f"'{key}' must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise InputError(path, f"'{key}' must be finite, got {value}")
+    return float(value)

@@ -1,0 +1,104 @@
+"""Small frozen types passed between the stages: readers -> grids -> filters -> exporters.
+
+Frame and unit conventions (see DESIGN.md):
+
+* Lengths in metres, angles in radians, counter-clockwise.
+* A grid's ``data[row, col]`` follows ROS ``nav_msgs/OccupancyGrid``: row 0 is the *lowest* y of the
+  map, column 0 the lowest x. Cell (row, col) has its centre at
+  ``origin + R(yaw) @ ((col + 0.5) * resolution, (row + 0.5) * resolution)`` in the map frame.
+* Images (PNG, PGM) are stored top row first, so ``image = np.flipud(data)``; readers and exporters
+  do that flip, nothing else does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Occupancy values, as in nav_msgs/OccupancyGrid.
+UNKNOWN = -1
+FREE = 0
+OCCUPIED = 100
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """Pose of a grid's lower-left corner in the map frame (metres, radians CCW)."""
+
+    x: float
+    y: float
+    yaw: float = 0.0
+
+    def transform(self, u: NDArray[np.float64], v: NDArray[np.float64]) -> tuple[
+        NDArray[np.float64], NDArray[np.float64]
+    ]:
+        """Map grid-local metric coordinates (u along columns, v along rows) to the map frame."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return self.x + c * u - s * v, self.y + s * u + c * v
+
+
+@dataclass(frozen=True)
+class OccupancyGrid:
+    """A 2D occupancy grid.
+
+    Attributes
+    ----------
+    data : int8 array, shape (H, W)
+        -1 unknown, 0 free ... 100 occupied, row 0 at the lowest y.
+    resolution : float
+        Cell side in metres, > 0.
+    origin : Pose2D
+        Pose of the lower-left corner of cell (0, 0) in the map frame.
+    """
+
+    data: NDArray[np.int8]
+    resolution: float
+    origin: Pose2D
+
+    def __post_init__(self) -> None:
+        if self.data.ndim != 2 or self.data.dtype != np.int8:
+            raise ValueError(f"data must be a 2D int8 array, got {self.data.dtype} {self.data.shape}")
+        if not (self.resolution > 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"resolution must be a positive number, got {self.resolution}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.data.shape[0]), int(self.data.shape[1]))
+
+    def with_data(self, data: NDArray[np.int8], origin: Pose2D | None = None) -> OccupancyGrid:
+        return OccupancyGrid(data, self.resolution, self.origin if origin is None else origin)
+
+
+@dataclass(frozen=True)
+class HeightGrid:
+    """A 2.5D height grid in the same cell layout as :class:`OccupancyGrid`.
+
+    Attributes
+    ----------
+    heights : float32 array, shape (H, W)
+        Ground height of each cell in metres (map frame z). Meaningful where ``known``.
+    known : bool array, shape (H, W)
+        Cells that hold a height.
+    resolution : float
+        Cell side in metres.
+    origin : Pose2D
+        Pose of the lower-left corner of cell (0, 0).
+    """
+
+    heights: NDArray[np.float32]
+    known: NDArray[np.bool_]
+    resolution: float
+    origin: Pose2D
+
+    def __post_init__(self) -> None:
+        if self.heights.ndim != 2 or self.heights.shape != self.known.shape:
+            raise ValueError("heights and known must be 2D arrays of the same shape")
+        if not (self.resolution > 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"resolution must be a positive number, got {self.resolution}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.heights.shape[0]), int(self.heights.shape[1]))

@@ -1,0 +1,520 @@
+// heightmap_probe: check a generated Gazebo world with Gazebo's own libraries.
+//
+// Usage: heightmap_probe WORLD_FILE OUT_DIR [MODEL_DIR ...]
+//
+// * Parses WORLD_FILE with SDFormat 12 (sdf::Root::Load) in STRICT mode:
+//   unrecognized elements, warnings and deprecated elements are errors.
+//   model://NAME/... URIs are resolved against every MODEL_DIR (a folder that
+//   holds model folders). Any parse error: errors on stderr, exit status 1.
+// * Walks every world -> model (nested and <include>d models too) -> link ->
+//   collision / visual whose geometry is a heightmap and reports it as JSON on
+//   stdout (one document).
+// * For every COLLISION heightmap, rebuilds the height field the way
+//   gz-physics' dartsim plugin does (gz-physics dartsim/src/CustomHeightmapShape.cc):
+//     vertSize = W*sampling - sampling + 1
+//     scale.x  = size.x / vertSize, scale.y likewise
+//     scale.z  = |size.z| / MaxElevation()   (1 if MaxElevation() == 0)
+//     ImageHeightmap::FillHeightMap(sampling, vertSize, size, scale, flipY=false)
+//   and writes the heights as raw little-endian float32, row-major
+//   (vertSize*vertSize values, row 0 = image top row) to OUT_DIR/<index>.f32.
+//
+//   gz-common 4.5.1's Image::MaxColor() fails on 16-bit images (it returns 0,
+//   logging "Coordinates out of range" for each pixel), so MaxElevation() is 0
+//   and gz-physics would fall back to scale.z = 1. A working gz-common scales to
+//   the brightest sample; when MaxElevation() is 0 this probe computes the
+//   brightest first-channel sample itself (normalised to 0..1 like MaxColor)
+//   and reports "max_elevation_fallback": true.
+//
+// Exit status: 0 ok, 1 SDF parse error, 2 usage / image / I/O error.
+
+#include <sdf/Collision.hh>
+#include <sdf/Element.hh>
+#include <sdf/Error.hh>
+#include <sdf/Geometry.hh>
+#include <sdf/Heightmap.hh>
+#include <sdf/Link.hh>
+#include <sdf/Model.hh>
+#include <sdf/ParserConfig.hh>
+#include <sdf/Root.hh>
+#include <sdf/SemanticPose.hh>
+#include <sdf/Visual.hh>
+#include <sdf/World.hh>
+
+#include <ignition/common/Console.hh>
+#include <ignition/common/Image.hh>
+#include <ignition/common/ImageHeightmap.hh>
+#include <ignition/math/Pose3.hh>
+#include <ignition/math/Vector3.hh>
+
+#include <algorithm>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace fs = std::filesystem;
+using ignition::math::Pose3d;
+using ignition::math::Vector3d;
+
+namespace
+{
+
+std::vector<std::string> g_modelDirs;
+
+/////////////////////////////////////////////////
+std::string Num(double _v)
+{
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.17g", _v);
+  std::string s(buf);
+  // JSON has no inf / nan.
+  if (s.find("inf") != std::string::npos || s.find("nan") != std::string::npos)
+    return "null";
+  return s;
+}
+
+/////////////////////////////////////////////////
+std::string Str(const std::string &_s)
+{
+  std::string out = "\"";
+  for (unsigned char c : _s)
+  {
+    switch (c)
+    {
+      case '"': out += "\\\""; break;
+      case '\\': out += "\\\\"; break;
+      case '\n': out += "\\n"; break;
+      case '\r': out += "\\r"; break;
+      case '\t': out += "\\t"; break;
+      default:
+        if (c < 0x20)
+        {
+          char buf[8];
+          std::snprintf(buf, sizeof(buf), "\\u%04x", c);
+          out += buf;
+        }
+        else
+        {
+          out += static_cast<char>(c);
+        }
+    }
+  }
+  return out + "\"";
+}
+
+/////////////////////////////////////////////////
+std::string Vec(const Vector3d &_v)
+{
+  return "[" + Num(_v.X()) + ", " + Num(_v.Y()) + ", " + Num(_v.Z()) + "]";
+}
+
+/////////////////////////////////////////////////
+std::string PoseJson(const Pose3d &_p)
+{
+  const Vector3d rpy = _p.Rot().Euler();
+  return "[" + Num(_p.Pos().X()) + ", " + Num(_p.Pos().Y()) + ", " +
+      Num(_p.Pos().Z()) + ", " + Num(rpy.X()) + ", " + Num(rpy.Y()) + ", " +
+      Num(rpy.Z()) + "]";
+}
+
+/////////////////////////////////////////////////
+/// Find "NAME/rest" (the part after model://) in the model directories.
+std::string FindInModelDirs(const std::string &_rest)
+{
+  for (const auto &dir : g_modelDirs)
+  {
+    fs::path p = fs::path(dir) / _rest;
+    if (fs::exists(p))
+      return fs::absolute(p).lexically_normal().string();
+  }
+  return "";
+}
+
+/////////////////////////////////////////////////
+/// Resolve a heightmap <uri> to an absolute file path, the way gz-sim does
+/// for the common cases: model:// against the model dirs, file:// stripped,
+/// relative paths against the folder of the SDF file that holds the element.
+std::string ResolveUri(const std::string &_uri, const std::string &_sdfFile)
+{
+  const std::string modelPrefix = "model://";
+  const std::string filePrefix = "file://";
+  if (_uri.rfind(modelPrefix, 0) == 0)
+    return FindInModelDirs(_uri.substr(modelPrefix.size()));
+
+  std::string path = _uri;
+  if (path.rfind(filePrefix, 0) == 0)
+    path = path.substr(filePrefix.size());
+
+  fs::path p(path);
+  if (p.is_relative() && !_sdfFile.empty())
+    p = fs::path(_sdfFile).parent_path() / p;
+  if (!fs::exists(p))
+    return "";
+  return fs::absolute(p).lexically_normal().string();
+}
+
+/////////////////////////////////////////////////
+/// Brightest first-channel sample of an image, normalised to 0..1 (what
+/// Image::MaxColor().R() returns for a working gz-common). Reads the same
+/// buffer, with the same indexing, as ImageHeightmap::FillHeights in
+/// gz-common 4.5.1 (ignition/common/ImageHeightmap.hh).
+double BrightestSample(const std::string &_path, std::string &_err)
+{
+  ignition::common::Image img;
+  if (img.Load(_path) != 0 || !img.Valid())
+  {
+    _err = "cannot load image " + _path;
+    return 0.0;
+  }
+  const unsigned int width = img.Width();
+  const unsigned int height = img.Height();
+  const unsigned int pitch = static_cast<unsigned int>(img.Pitch());
+  if (width == 0 || height == 0 || pitch == 0)
+  {
+    _err = "empty image " + _path;
+    return 0.0;
+  }
+
+  using PF = ignition::common::Image::PixelFormatType;
+  const PF fmt = img.PixelFormat();
+  bool wide = false;
+  switch (fmt)
+  {
+    case PF::L_INT8:
+    case PF::RGB_INT8:
+    case PF::RGBA_INT8:
+    case PF::BGR_INT8:
+    case PF::BGRA_INT8:
+    case PF::BAYER_BGGR8:
+    case PF::BAYER_GBRG8:
+    case PF::BAYER_GRBG8:
+    case PF::BAYER_RGGB8:
+      wide = false;
+      break;
+    case PF::L_INT16:
+    case PF::RGB_INT16:
+    case PF::BGR_INT16:
+    case PF::RGB_FLOAT16:
+    case PF::R_FLOAT16:
+      wide = true;
+      break;
+    default:
+      _err = "unsupported pixel format " + std::to_string(static_cast<int>(fmt));
+      return 0.0;
+  }
+
+  unsigned char *data = nullptr;
+  unsigned int count = 0;
+  img.Data(&data, count);
+  if (data == nullptr)
+  {
+    _err = "no pixel data in " + _path;
+    return 0.0;
+  }
+
+  const unsigned int bpp = pitch / width;           // bytes per pixel
+  const unsigned int sampleBytes = wide ? 2u : 1u;
+  const unsigned int channels = std::max(1u, bpp / sampleBytes);
+  const unsigned int pitchInPixels = pitch / bpp;
+  double best = 0.0;
+  for (unsigned int y = 0; y < height; ++y)
+  {
+    for (unsigned int x = 0; x < width; ++x)
+    {
+      const std::size_t idx =
+          (static_cast<std::size_t>(y) * pitchInPixels + x) * channels;
+      double v;
+      if (wide)
+      {
+        if ((idx + 1) * 2 > count)
+          continue;
+        uint16_t s;
+        std::memcpy(&s, data + idx * 2, sizeof(s));
+        v = s / 65535.0;
+      }
+      else
+      {
+        if (idx + 1 > count)
+          continue;
+        v = data[idx] / 255.0;
+      }
+      best = std::max(best, v);
+    }
+  }
+  delete [] data;
+  return best;
+}
+
+std::vector<std::string> g_entries;
+std::string g_outDir;
+int g_collisionIndex = 0;
+int g_status = 0;
+
+/////////////////////////////////////////////////
+void ReportHeightmap(const std::string &_model, const std::string &_link,
+    const std::string &_kind, const std::string &_name, const Pose3d &_pose,
+    const std::string &_poseMethod, const sdf::Heightmap &_hm)
+{
+  const std::string path = ResolveUri(_hm.Uri(), _hm.FilePath());
+  std::ostringstream o;
+  o << "{\"model\": " << Str(_model)
+    << ", \"link\": " << Str(_link)
+    << ", \"kind\": " << Str(_kind)
+    << ", \"name\": " << Str(_name)
+    << ", \"pose\": " << PoseJson(_pose)
+    << ", \"pose_method\": " << Str(_poseMethod)
+    << ", \"uri\": " << Str(_hm.Uri())
+    << ", \"sdf_file\": " << Str(_hm.FilePath())
+    << ", \"path\": " << (path.empty() ? std::string("null") : Str(path))
+    << ", \"size\": " << Vec(_hm.Size())
+    << ", \"pos\": " << Vec(_hm.Position())
+    << ", \"sampling\": " << _hm.Sampling()
+    << ", \"use_terrain_paging\": " << (_hm.UseTerrainPaging() ? "true" : "false")
+    << ", \"textures\": " << _hm.TextureCount()
+    << ", \"blends\": " << _hm.BlendCount();
+
+  if (_kind == "collision")
+  {
+    if (path.empty())
+    {
+      std::cerr << "heightmap_probe: cannot resolve heightmap uri ["
+                << _hm.Uri() << "] of " << _model << "/" << _link << "/"
+                << _name << "\n";
+      g_status = 2;
+      o << ", \"error\": " << Str("unresolved uri") << "}";
+      g_entries.push_back(o.str());
+      return;
+    }
+
+    // gz-physics dartsim/src/CustomHeightmapShape.cc
+    ignition::common::ImageHeightmap img;
+    if (img.Load(path) != 0)
+    {
+      std::cerr << "heightmap_probe: cannot load heightmap image [" << path
+                << "]\n";
+      g_status = 2;
+      o << ", \"error\": " << Str("image load failed") << "}";
+      g_entries.push_back(o.str());
+      return;
+    }
+    const int sampling = static_cast<int>(_hm.Sampling());
+    const unsigned int width = img.Width();
+    const unsigned int height = img.Height();
+    const int vertSize = static_cast<int>(width) * sampling - sampling + 1;
+    const Vector3d size = _hm.Size();
+
+    double maxElevation = img.MaxElevation();
+    const double reportedMaxElevation = maxElevation;
+    bool fallback = false;
+    if (maxElevation == 0.0)
+    {
+      std::string err;
+      const double brightest = BrightestSample(path, err);
+      if (!err.empty())
+      {
+        std::cerr << "heightmap_probe: " << err << "\n";
+        g_status = 2;
+      }
+      if (brightest > 0.0)
+      {
+        maxElevation = brightest;
+        fallback = true;
+      }
+    }
+
+    Vector3d scale;
+    scale.X(size.X() / vertSize);
+    scale.Y(size.Y() / vertSize);
+    if (maxElevation == 0.0)
+      scale.Z(1.0);
+    else
+      scale.Z(std::fabs(size.Z()) / maxElevation);
+
+    std::vector<float> heights;
+    img.FillHeightMap(sampling, static_cast<unsigned int>(vertSize), size,
+        scale, false, heights);
+
+    const std::string fileName = std::to_string(g_collisionIndex++) + ".f32";
+    const fs::path outPath = fs::path(g_outDir) / fileName;
+    std::ofstream out(outPath, std::ios::binary);
+    // x86-64 / aarch64 are little-endian; float is IEEE-754 binary32.
+    out.write(reinterpret_cast<const char *>(heights.data()),
+        static_cast<std::streamsize>(heights.size() * sizeof(float)));
+    out.close();
+    if (!out)
+    {
+      std::cerr << "heightmap_probe: cannot write " << outPath << "\n";
+      g_status = 2;
+    }
+
+    ignition::common::Image raw;
+    raw.Load(path);
+    o << ", \"image_width\": " << width
+      << ", \"image_height\": " << height
+      << ", \"image_bpp\": " << raw.BPP()
+      << ", \"vert_size\": " << vertSize
+      << ", \"scale\": " << Vec(scale)
+      << ", \"max_elevation_reported\": " << Num(reportedMaxElevation)
+      << ", \"max_elevation\": " << Num(maxElevation)
+      << ", \"max_elevation_fallback\": " << (fallback ? "true" : "false")
+      << ", \"heights_count\": " << heights.size()
+      << ", \"heights_file\": " << Str(fs::absolute(outPath).string());
+  }
+  o << "}";
+  g_entries.push_back(o.str());
+}
+
+/////////////////////////////////////////////////
+/// Pose of _child in the frame named _frame, via the SDFormat pose graph.
+template <typename T>
+bool Resolve(const T &_child, const std::string &_frame, Pose3d &_out)
+{
+  Pose3d p;
+  const sdf::Errors errs = _child.SemanticPose().Resolve(p, _frame);
+  if (!errs.empty())
+    return false;
+  _out = p;
+  return true;
+}
+
+/////////////////////////////////////////////////
+void WalkModel(const sdf::Model &_model, const Pose3d &_worldPose,
+    bool _semantic, const std::string &_prefix)
+{
+  const std::string modelName = _prefix.empty() ?
+      _model.Name() : _prefix + "::" + _model.Name();
+
+  for (uint64_t li = 0; li < _model.LinkCount(); ++li)
+  {
+    const sdf::Link *link = _model.LinkByIndex(li);
+    Pose3d linkInModel = link->RawPose();
+    bool linkSemantic = _semantic && Resolve(*link, "__model__", linkInModel);
+    if (!linkSemantic)
+      linkInModel = link->RawPose();
+
+    auto handle = [&](const auto &_elem, const std::string &_kind)
+    {
+      const sdf::Geometry *geom = _elem.Geom();
+      if (geom == nullptr || geom->Type() != sdf::GeometryType::HEIGHTMAP ||
+          geom->HeightmapShape() == nullptr)
+        return;
+      // Collision / visual poses resolve to the model frame; the model's world
+      // pose was resolved by the caller (world scope).
+      Pose3d elemInModel;
+      bool ok = linkSemantic && Resolve(_elem, "__model__", elemInModel);
+      if (!ok)
+        elemInModel = linkInModel * _elem.RawPose();  // raw: relative to link
+      // ignition::math 6.10 Pose3: X_OQ = X_OP * X_PQ.
+      const Pose3d world = _worldPose * elemInModel;
+      ReportHeightmap(modelName, link->Name(), _kind, _elem.Name(), world,
+          ok ? "semantic" : "raw", *geom->HeightmapShape());
+    };
+
+    for (uint64_t ci = 0; ci < link->CollisionCount(); ++ci)
+      handle(*link->CollisionByIndex(ci), "collision");
+    for (uint64_t vi = 0; vi < link->VisualCount(); ++vi)
+      handle(*link->VisualByIndex(vi), "visual");
+  }
+
+  for (uint64_t mi = 0; mi < _model.ModelCount(); ++mi)
+  {
+    const sdf::Model *child = _model.ModelByIndex(mi);
+    Pose3d childInParent;
+    bool ok = _semantic && Resolve(*child, "__model__", childInParent);
+    if (!ok)
+      childInParent = child->RawPose();
+    WalkModel(*child, _worldPose * childInParent, ok, modelName);
+  }
+}
+
+}  // namespace
+
+/////////////////////////////////////////////////
+int main(int argc, char **argv)
+{
+  if (argc < 3)
+  {
+    std::cerr << "usage: heightmap_probe WORLD_FILE OUT_DIR [MODEL_DIR ...]\n";
+    return 2;
+  }
+  // Keep gz-common quiet on stdout (stdout carries the JSON); errors still
+  // reach stderr.
+  ignition::common::Console::SetVerbosity(1);
+
+  const std::string worldFile = argv[1];
+  g_outDir = argv[2];
+  for (int i = 3; i < argc; ++i)
+    g_modelDirs.push_back(fs::absolute(argv[i]).lexically_normal().string());
+
+  std::error_code ec;
+  fs::create_directories(g_outDir, ec);
+
+  // SDFormat 12.3 parses <include>d files with the GLOBAL ParserConfig, not the
+  // one passed to Root::Load, so the strict policies (and the model:// paths)
+  // go on both.
+  auto makeStrict = [](sdf::ParserConfig &_config)
+  {
+    _config.SetWarningsPolicy(sdf::EnforcementPolicy::ERR);
+    _config.SetUnrecognizedElementsPolicy(sdf::EnforcementPolicy::ERR);
+    _config.SetDeprecatedElementsPolicy(sdf::EnforcementPolicy::ERR);
+    for (const auto &dir : g_modelDirs)
+      _config.AddURIPath("model://", dir);
+    // The URI path map only answers model://; anything else goes through this
+    // callback, which only ever looks inside the given model dirs.
+    _config.SetFindCallback([](const std::string &_uri) -> std::string
+    {
+      const std::string prefix = "model://";
+      if (_uri.rfind(prefix, 0) == 0)
+        return FindInModelDirs(_uri.substr(prefix.size()));
+      return "";
+    });
+  };
+  sdf::ParserConfig config;
+  makeStrict(config);
+  makeStrict(sdf::ParserConfig::GlobalConfig());
+
+  sdf::Root root;
+  const sdf::Errors errors = root.Load(worldFile, config);
+  if (!errors.empty())
+  {
+    for (const auto &e : errors)
+      std::cerr << "SDF error: " << e << "\n";
+    return 1;
+  }
+
+  for (uint64_t wi = 0; wi < root.WorldCount(); ++wi)
+  {
+    const sdf::World *world = root.WorldByIndex(wi);
+    for (uint64_t mi = 0; mi < world->ModelCount(); ++mi)
+    {
+      const sdf::Model *model = world->ModelByIndex(mi);
+      Pose3d modelInWorld;
+      bool ok = Resolve(*model, "world", modelInWorld);
+      if (!ok)
+        modelInWorld = model->RawPose();
+      WalkModel(*model, modelInWorld, ok, "");
+    }
+  }
+  if (root.Model() != nullptr)
+  {
+    // A model file on its own: report poses in the model frame.
+    WalkModel(*root.Model(), root.Model()->RawPose(), true, "");
+  }
+
+  // root.Version() is the version SDFormat converted the document TO (1.9 for
+  // SDFormat 12); OriginalVersion() is the <sdf version="..."> of the file.
+  const std::string original =
+      root.Element() ? root.Element()->OriginalVersion() : std::string();
+  std::cout << "{\"sdf_version\": " << Str(root.Version())
+            << ", \"sdf_original_version\": " << Str(original)
+            << ", \"heightmaps\": [";
+  for (std::size_t i = 0; i < g_entries.size(); ++i)
+    std::cout << (i ? ",\n  " : "\n  ") << g_entries[i];
+  std::cout << "\n]}\n";
+  return g_status;
+}
