@@ -104,7 +104,9 @@ def main() -> None:
     args = parser.parse_args()
 
     grid = synthetic_map(args.size, args.seed)
-    share = {name: float(np.mean(grid == v)) for name, v in [("free", FREE), ("occupied", OCCUPIED)]}
+    share = {
+        name: float(np.mean(grid == v)) for name, v in [("free", FREE), ("occupied", OCCUPIED)]
+    }
     print(
         f"map {args.size}x{args.size} int8, seed {args.seed}: "
         f"{share['free']:.1%} free, {share['occupied']:.1%} occupied, "

@@ -88,6 +88,7 @@ class HeightmapProbe:
     image_bpp: int | None = None
     vert_size: int | None = None
     scale: tuple[float, float, float] | None = None
+    max_elevation_called: bool | None = None
     max_elevation_reported: float | None = None
     max_elevation: float | None = None
     max_elevation_fallback: bool | None = None
@@ -184,7 +185,12 @@ def _to_probe(entry: dict[str, Any], original_version: str) -> HeightmapProbe:
     probe.image_bpp = int(entry["image_bpp"])
     probe.vert_size = int(entry["vert_size"])
     probe.scale = _tuple(entry["scale"])  # type: ignore[assignment]
-    probe.max_elevation_reported = float(entry["max_elevation_reported"])
+    # ImageHeightmap::MaxElevation() as gz-common returned it; None when the probe did
+    # not call it (16-bit images over 129x129: the call is known to fail there and
+    # logs one line per pixel). max_elevation is what scale.z was computed from.
+    probe.max_elevation_called = bool(entry["max_elevation_called"])
+    reported = entry["max_elevation_reported"]
+    probe.max_elevation_reported = None if reported is None else float(reported)
     probe.max_elevation = float(entry["max_elevation"])
     probe.max_elevation_fallback = bool(entry["max_elevation_fallback"])
     probe.heights_file = Path(entry["heights_file"])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from gazebo_harness import (
+from tests.gazebo_harness import (
     INSTALL_HINT,
     HeightmapProbe,
     SdfParseError,
@@ -378,7 +378,7 @@ def test_probe_binary_is_cached(tmp_path: Path) -> None:
 def test_missing_toolchain_raises_with_install_hint(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import gazebo_harness
+    from tests import gazebo_harness
 
     monkeypatch.setattr(gazebo_harness, "BUILD_ROOT", tmp_path / "build")
     monkeypatch.setattr(gazebo_harness.shutil, "which", lambda _name: None)

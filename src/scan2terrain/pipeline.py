@@ -232,8 +232,9 @@ def _write(
             result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
         if cfg.output.preview:
             result.preview = od.write("preview.png", preview)
-        result.config = od.write(CONFIG_FILE, yaml.safe_dump(
-            {"source": str(source), **cfg.to_dict()}, sort_keys=False).encode())
+        header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
+        body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
+        result.config = od.write(CONFIG_FILE, (header + body).encode())
     return result
 
 

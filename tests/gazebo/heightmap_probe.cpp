@@ -5,7 +5,9 @@
 // * Parses WORLD_FILE with SDFormat 12 (sdf::Root::Load) in STRICT mode:
 //   unrecognized elements, warnings and deprecated elements are errors.
 //   model://NAME/... URIs are resolved against every MODEL_DIR (a folder that
-//   holds model folders). Any parse error: errors on stderr, exit status 1.
+//   holds model folders). SDFormat 12.3 does not apply these policies to
+//   <include>d files, so each file a model came from is also loaded on its own
+//   with the same strict config. Any parse error: errors on stderr, exit 1.
 // * Walks every world -> model (nested and <include>d models too) -> link ->
 //   collision / visual whose geometry is a heightmap and reports it as JSON on
 //   stdout (one document).
@@ -53,6 +55,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -156,6 +159,17 @@ std::string ResolveUri(const std::string &_uri, const std::string &_sdfFile)
   if (!fs::exists(p))
     return "";
   return fs::absolute(p).lexically_normal().string();
+}
+
+/////////////////////////////////////////////////
+/// True for the pixel formats gz-common 4.5.1's FillHeightMap reads as
+/// uint16 samples (ImageHeightmap.cc); false for the 8-bit ones.
+bool IsWide(ignition::common::Image::PixelFormatType _fmt)
+{
+  using PF = ignition::common::Image::PixelFormatType;
+  return _fmt == PF::L_INT16 || _fmt == PF::RGB_INT16 ||
+      _fmt == PF::BGR_INT16 || _fmt == PF::RGB_FLOAT16 ||
+      _fmt == PF::R_FLOAT16;
 }
 
 /////////////////////////////////////////////////
@@ -308,7 +322,24 @@ void ReportHeightmap(const std::string &_model, const std::string &_link,
     const int vertSize = static_cast<int>(width) * sampling - sampling + 1;
     const Vector3d size = _hm.Size();
 
-    double maxElevation = img.MaxElevation();
+    // gz-common 4.5.1 Image::MaxColor() reads pixels with FreeImage_GetPixelIndex
+    // / GetPixelColor, which only work on 8-bit-per-channel bitmaps: on a 16-bit
+    // image it fails for every pixel, logging one "Coordinates out of range"
+    // line each (and formatting + writing them costs ~1 min for 2049x2049),
+    // then returns 0. So on 16-bit images MaxElevation() is only called when
+    // the image is small enough (<= 129x129) to show the bug cheaply.
+    ignition::common::Image raw;
+    raw.Load(path);
+    const bool wide = IsWide(raw.PixelFormat());
+    const bool callMaxElevation =
+        !wide || static_cast<uint64_t>(width) * height <= 129u * 129u;
+    double maxElevation = 0.0;
+    if (callMaxElevation)
+    {
+      ignition::common::Console::SetVerbosity(0);
+      maxElevation = img.MaxElevation();
+      ignition::common::Console::SetVerbosity(1);
+    }
     const double reportedMaxElevation = maxElevation;
     bool fallback = false;
     if (maxElevation == 0.0)
@@ -352,14 +383,14 @@ void ReportHeightmap(const std::string &_model, const std::string &_link,
       g_status = 2;
     }
 
-    ignition::common::Image raw;
-    raw.Load(path);
     o << ", \"image_width\": " << width
       << ", \"image_height\": " << height
       << ", \"image_bpp\": " << raw.BPP()
       << ", \"vert_size\": " << vertSize
       << ", \"scale\": " << Vec(scale)
-      << ", \"max_elevation_reported\": " << Num(reportedMaxElevation)
+      << ", \"max_elevation_called\": " << (callMaxElevation ? "true" : "false")
+      << ", \"max_elevation_reported\": "
+      << (callMaxElevation ? Num(reportedMaxElevation) : std::string("null"))
       << ", \"max_elevation\": " << Num(maxElevation)
       << ", \"max_elevation_fallback\": " << (fallback ? "true" : "false")
       << ", \"heights_count\": " << heights.size()
@@ -432,6 +463,16 @@ void WalkModel(const sdf::Model &_model, const Pose3d &_worldPose,
   }
 }
 
+/////////////////////////////////////////////////
+/// Files that models (and nested models) were read from.
+void CollectModelFiles(const sdf::Model &_model, std::set<std::string> &_files)
+{
+  if (_model.Element() != nullptr && !_model.Element()->FilePath().empty())
+    _files.insert(_model.Element()->FilePath());
+  for (uint64_t mi = 0; mi < _model.ModelCount(); ++mi)
+    CollectModelFiles(*_model.ModelByIndex(mi), _files);
+}
+
 }  // namespace
 
 /////////////////////////////////////////////////
@@ -453,30 +494,25 @@ int main(int argc, char **argv)
 
   std::error_code ec;
   fs::create_directories(g_outDir, ec);
+  // gz-common copies every log line (whatever the verbosity) into a log file,
+  // by default ~/.ignition/auto_default.log: keep it inside OUT_DIR instead.
+  ignLogInit(fs::absolute(g_outDir).string(), "gz-common.log");
 
-  // SDFormat 12.3 parses <include>d files with the GLOBAL ParserConfig, not the
-  // one passed to Root::Load, so the strict policies (and the model:// paths)
-  // go on both.
-  auto makeStrict = [](sdf::ParserConfig &_config)
-  {
-    _config.SetWarningsPolicy(sdf::EnforcementPolicy::ERR);
-    _config.SetUnrecognizedElementsPolicy(sdf::EnforcementPolicy::ERR);
-    _config.SetDeprecatedElementsPolicy(sdf::EnforcementPolicy::ERR);
-    for (const auto &dir : g_modelDirs)
-      _config.AddURIPath("model://", dir);
-    // The URI path map only answers model://; anything else goes through this
-    // callback, which only ever looks inside the given model dirs.
-    _config.SetFindCallback([](const std::string &_uri) -> std::string
-    {
-      const std::string prefix = "model://";
-      if (_uri.rfind(prefix, 0) == 0)
-        return FindInModelDirs(_uri.substr(prefix.size()));
-      return "";
-    });
-  };
   sdf::ParserConfig config;
-  makeStrict(config);
-  makeStrict(sdf::ParserConfig::GlobalConfig());
+  config.SetWarningsPolicy(sdf::EnforcementPolicy::ERR);
+  config.SetUnrecognizedElementsPolicy(sdf::EnforcementPolicy::ERR);
+  config.SetDeprecatedElementsPolicy(sdf::EnforcementPolicy::ERR);
+  for (const auto &dir : g_modelDirs)
+    config.AddURIPath("model://", dir);
+  // The URI path map only answers model://; anything else goes through this
+  // callback, which only ever looks inside the given model dirs.
+  config.SetFindCallback([](const std::string &_uri) -> std::string
+  {
+    const std::string prefix = "model://";
+    if (_uri.rfind(prefix, 0) == 0)
+      return FindInModelDirs(_uri.substr(prefix.size()));
+    return "";
+  });
 
   sdf::Root root;
   const sdf::Errors errors = root.Load(worldFile, config);
@@ -486,6 +522,36 @@ int main(int argc, char **argv)
       std::cerr << "SDF error: " << e << "\n";
     return 1;
   }
+
+  // SDFormat 12.3 does not apply the ParserConfig policies to <include>d
+  // files: a misspelled element inside an included model.sdf is only logged
+  // (or not at all) and Root::Load still succeeds. So every file that
+  // contributed a model is loaded again, on its own, with the strict config.
+  std::set<std::string> files;
+  for (uint64_t wi = 0; wi < root.WorldCount(); ++wi)
+  {
+    const sdf::World *world = root.WorldByIndex(wi);
+    for (uint64_t mi = 0; mi < world->ModelCount(); ++mi)
+      CollectModelFiles(*world->ModelByIndex(mi), files);
+  }
+  if (root.Model() != nullptr)
+    CollectModelFiles(*root.Model(), files);
+  bool includeErrors = false;
+  for (const auto &file : files)
+  {
+    std::error_code same;
+    if (fs::equivalent(file, worldFile, same))
+      continue;
+    sdf::Root included;
+    const sdf::Errors errs = included.Load(file, config);
+    for (const auto &e : errs)
+    {
+      std::cerr << "SDF error (included file " << file << "): " << e << "\n";
+      includeErrors = true;
+    }
+  }
+  if (includeErrors)
+    return 1;
 
   for (uint64_t wi = 0; wi < root.WorldCount(); ++wi)
   {

@@ -103,7 +103,7 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
     rows, cols = grid.shape
     n = heightmap_side(rows, cols)
     left, bottom = (n - cols) // 2, (n - rows) // 2
-    canvas = np.full((n, n), pad_height, dtype=np.float64)
+    canvas = np.full((n, n), pad_height, dtype=np.float32)
     canvas[bottom : bottom + rows, left : left + cols] = np.where(grid.known, grid.heights, pad_height)
 
     z_min = min(0.0, float(canvas.min()))
@@ -111,7 +111,7 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
     full = (1 << bit_depth) - 1
     if z_max > z_min:
         z_range = z_max - z_min
-        levels = np.rint((canvas - z_min) / z_range * full)
+        levels = np.rint((canvas - np.float32(z_min)) * np.float32(full / z_range))
     else:  # flat: every pixel 0, Gazebo falls back to a scale of 1 and the ground is at z_min
         z_range = 1.0
         levels = np.zeros_like(canvas)

@@ -12,14 +12,17 @@ from scan2terrain.exporters.mapserver import trinary_shades
 #: Panels wider or taller than this are decimated (every k-th cell) to keep previews small.
 MAX_PANEL = 2048
 GAP = 8
+#: Palette entries for the difference marks; the faded panel only uses 128..255.
+RED, BLUE = 1, 2
 
 
 def preview_png(before: NDArray[np.integer], after: NDArray[np.integer], *, occupancy: bool) -> bytes:
-    """Before and after in grid order (row 0 lowest y), same shape, as a three-panel RGB PNG.
+    """Before and after in grid order (row 0 lowest y), same shape, as a three-panel PNG.
 
     Occupancy grids are drawn in map_saver shades; grey images as they are (scaled to 8 bits).
     The difference panel is the "after" image faded, with cells that changed in colour: red where
-    the value went up (e.g. became occupied), blue where it went down.
+    the value went up (e.g. became occupied), blue where it went down. The image is a palette PNG
+    (grey levels, then the two marks), a third the size of RGB and quicker to write.
     """
     from PIL import Image
 
@@ -27,21 +30,24 @@ def preview_png(before: NDArray[np.integer], after: NDArray[np.integer], *, occu
         raise ValueError("before and after must have the same shape")
     step = max(1, -(-max(before.shape) // MAX_PANEL))
     b, a = np.flipud(before)[::step, ::step], np.flipud(after)[::step, ::step]
-    grey_b, grey_a = (_grey(b, occupancy), _grey(a, occupancy))
-    diff = np.repeat((128 + grey_a // 2)[..., None], 3, axis=2)
-    up, down = a > b, a < b
+    # Panels use 3..255, so palette entries RED and BLUE mean only the marks.
+    grey_b, grey_a = np.maximum(_grey(b, occupancy), 3), np.maximum(_grey(a, occupancy), 3)
     if occupancy:  # unknown (-1) sits between free and occupied, not below free
-        rank_b, rank_a = _rank(b), _rank(a)
-        up, down = rank_a > rank_b, rank_a < rank_b
-    diff[up] = (220, 30, 30)
-    diff[down] = (30, 80, 230)
+        b, a = _rank(b), _rank(a)
+    diff = 128 + grey_a // 2
+    diff[a > b] = RED
+    diff[a < b] = BLUE
     h, w = b.shape
-    canvas = np.full((h, 3 * w + 2 * GAP, 3), 255, dtype=np.uint8)
-    canvas[:, :w] = grey_b[..., None]
-    canvas[:, w + GAP : 2 * w + GAP] = grey_a[..., None]
+    canvas = np.full((h, 3 * w + 2 * GAP), 255, dtype=np.uint8)
+    canvas[:, :w] = grey_b
+    canvas[:, w + GAP : 2 * w + GAP] = grey_a
     canvas[:, 2 * w + 2 * GAP :] = diff
+    palette = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)
+    palette[RED], palette[BLUE] = (220, 30, 30), (30, 80, 230)
+    img = Image.frombuffer("P", (canvas.shape[1], canvas.shape[0]), canvas.tobytes(), "raw", "P", 0, 1)
+    img.putpalette(palette.ravel().tolist())
     buf = io.BytesIO()
-    Image.fromarray(canvas).save(buf, format="PNG", compress_level=6)
+    img.save(buf, format="PNG", compress_level=1)  # a preview: speed first
     return buf.getvalue()
 
 

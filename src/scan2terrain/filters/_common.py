@@ -59,29 +59,38 @@ def distinct_values(arr: NDArray[Any]) -> NDArray[Any]:
     return np.sort(values)
 
 
-def windows_3x3(
-    arr: NDArray[Any], cells: NDArray[np.intp]
-) -> tuple[NDArray[Any], NDArray[np.bool_]]:
+#: The offsets (row, column) of a 3 x 3 window, in the order of the rows of windows_3x3's result.
+OFFSETS_3X3 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1))
+
+
+def windows_3x3(arr: NDArray[Any], cells: NDArray[np.intp]) -> NDArray[Any]:
     """The 3 x 3 windows of ``arr`` around the cells with flat (C order) indices ``cells``.
 
-    Returns
-    -------
-    values : array, shape (9, len(cells)), ``arr``'s dtype
-        Row ``3 * (dy + 1) + (dx + 1)`` holds the cells at offset (dy, dx); row 4 is the centre.
-        Offsets outside ``arr`` repeat the nearest edge cell.
-    inside : bool array, shape (9, len(cells))
-        Which of those offsets lie inside ``arr`` (for filters whose windows are clipped).
+    Returns an array of shape (9, len(cells)) in ``arr``'s dtype: row k holds the cells at offset
+    ``OFFSETS_3X3[k]`` (row 4 is the centre). Offsets outside ``arr`` repeat the nearest edge cell.
     """
-    height, width = arr.shape
-    rows, cols = np.divmod(cells, width)
+    width = arr.shape[1]
     stride = width + 2
     padded = np.pad(arr, 1, mode="edge").reshape(-1)
-    centres = (rows + 1) * stride + (cols + 1)
+    # Cell (r, c) sits at (r + 1) * stride + (c + 1) in the padded array.
+    centres = cells + 2 * (cells // width) + (stride + 1)
     values = np.empty((9, cells.size), dtype=arr.dtype)
-    inside = np.empty((9, cells.size), dtype=bool)
-    row_inside = {-1: rows > 0, 0: np.ones(cells.size, dtype=bool), 1: rows < height - 1}
-    col_inside = {-1: cols > 0, 0: np.ones(cells.size, dtype=bool), 1: cols < width - 1}
-    for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+    for k, (dy, dx) in enumerate(OFFSETS_3X3):
         np.take(padded, centres + (dy * stride + dx), out=values[k])
+    return values
+
+
+def inside_3x3(shape: tuple[int, ...], cells: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Which offsets of the :func:`windows_3x3` of ``cells`` lie inside an array of ``shape``.
+
+    Returns a bool array of shape (9, len(cells)), for filters whose windows are clipped.
+    """
+    height, width = shape
+    rows, cols = np.divmod(cells, width)
+    everywhere = np.ones(cells.size, dtype=bool)
+    row_inside = {-1: rows > 0, 0: everywhere, 1: rows < height - 1}
+    col_inside = {-1: cols > 0, 0: everywhere, 1: cols < width - 1}
+    inside = np.empty((9, cells.size), dtype=bool)
+    for k, (dy, dx) in enumerate(OFFSETS_3X3):
         np.logical_and(row_inside[dy], col_inside[dx], out=inside[k])
-    return values, inside
+    return inside

@@ -8,7 +8,13 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.filters._common import check_2d, check_size, distinct_values, windows_3x3
+from scan2terrain.filters._common import (
+    check_2d,
+    check_size,
+    distinct_values,
+    inside_3x3,
+    windows_3x3,
+)
 
 __all__ = ["majority_filter"]
 
@@ -73,7 +79,8 @@ def majority_3x3_at(arr: NDArray[Any], cells: NDArray[np.intp]) -> NDArray[Any]:
 
     Cheaper than filtering the whole array when ``cells`` are a small share of it.
     """
-    windows, inside = windows_3x3(arr, cells)
+    windows = windows_3x3(arr, cells)
+    inside = inside_3x3(arr.shape, cells)
     centre = windows[4]
     score_dtype = np.dtype(np.uint8)
 
@@ -86,7 +93,7 @@ def majority_3x3_at(arr: NDArray[Any], cells: NDArray[np.intp]) -> NDArray[Any]:
         return counts
 
     return _elect(
-        np.unique(windows), score, shape=cells.shape, dtype=arr.dtype, score_dtype=score_dtype
+        distinct_values(windows), score, shape=cells.shape, dtype=arr.dtype, score_dtype=score_dtype
     )
 
 
@@ -118,16 +125,29 @@ def _elect(
 def box_count(mask: NDArray[np.bool_], *, radius: int, dtype: np.dtype[Any]) -> NDArray[Any]:
     """Number of True cells in each (2 * radius + 1)-square window, clipped at the array edge.
 
-    Separable sums of shifted slices: 4 * radius additions, no padding, no floats.
+    Separable sums of shifted slices (2 * radius additions per axis): no padding, no floats.
     """
-    ones = mask.view(np.uint8)
-    height, width = mask.shape
-    rows = ones.astype(dtype)
-    for d in range(1, min(radius, width - 1) + 1):
-        np.add(rows[:, d:], ones[:, :-d], out=rows[:, d:])
-        np.add(rows[:, :-d], ones[:, d:], out=rows[:, :-d])
-    counts: NDArray[Any] = rows.copy()
-    for d in range(1, min(radius, height - 1) + 1):
-        np.add(counts[d:], rows[:-d], out=counts[d:])
-        np.add(counts[:-d], rows[d:], out=counts[:-d])
-    return counts
+    rows = _shifted_sum(mask.view(np.uint8), radius=radius, axis=1, dtype=dtype)
+    return _shifted_sum(rows, radius=radius, axis=0, dtype=dtype)
+
+
+def _shifted_sum(
+    values: NDArray[Any], *, radius: int, axis: int, dtype: np.dtype[Any]
+) -> NDArray[Any]:
+    """Sum of ``values`` over offsets -radius..radius along ``axis``, offsets outside left out."""
+
+    def part(start: int | None, stop: int | None) -> tuple[slice, ...]:
+        return (slice(None), slice(start, stop)) if axis == 1 else (slice(start, stop),)
+
+    total = np.empty(values.shape, dtype=dtype)
+    if values.shape[axis] < 2:
+        total[...] = values
+        return total
+    # Offset +-1 first, written straight into `total` to save the pass a copy would cost.
+    np.add(values[part(1, None)], values[part(None, -1)], out=total[part(1, None)])
+    total[part(None, 1)] = values[part(None, 1)]
+    np.add(total[part(None, -1)], values[part(1, None)], out=total[part(None, -1)])
+    for d in range(2, min(radius, values.shape[axis] - 1) + 1):
+        np.add(total[part(d, None)], values[part(None, -d)], out=total[part(d, None)])
+        np.add(total[part(None, -d)], values[part(d, None)], out=total[part(None, -d)])
+    return total

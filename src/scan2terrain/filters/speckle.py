@@ -6,7 +6,6 @@ from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from scan2terrain.filters._common import check_2d
 
@@ -14,9 +13,10 @@ __all__ = ["remove_speckles"]
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
+#: Neighbourhoods for scipy.ndimage.label: 4-connected (a cross) and 8-connected (full 3x3).
 _STRUCTURES = {
-    4: ndimage.generate_binary_structure(2, 1),
-    8: ndimage.generate_binary_structure(2, 2),
+    4: np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool),
+    8: np.ones((3, 3), dtype=bool),
 }
 
 
@@ -61,14 +61,18 @@ def remove_speckles(
     _check_fits("replace_with", replace_with, arr.dtype)
     if isinstance(min_cells, bool) or not isinstance(min_cells, (int, np.integer)):
         raise ValueError(f"min_cells must be an integer, got {min_cells!r}")
-    out: NDArray[ScalarT] = arr.copy()
+    out: NDArray[ScalarT] = np.array(arr, order="C")
     if min_cells <= 1:
         return out
-    components, _ = ndimage.label(arr == value, structure=_STRUCTURES[connectivity])
-    sizes = np.bincount(components.reshape(-1))
-    small = sizes < min_cells
-    small[0] = False  # component 0 is everything that is not `value`
-    out[small[components]] = replace_with
+    from scipy import ndimage  # deferred: importing scipy.ndimage costs ~1 s of start-up
+
+    is_value = arr == value
+    components, count = ndimage.label(is_value, structure=_STRUCTURES[connectivity])
+    # Work on the cells of `value` only: usually a small share of the map (walls, noise).
+    cells = np.flatnonzero(is_value)
+    cell_component = components.reshape(-1)[cells]
+    sizes = np.bincount(cell_component, minlength=count + 1)
+    out.reshape(-1)[cells[sizes[cell_component] < min_cells]] = replace_with
     return out
 
 

@@ -1,0 +1,176 @@
+"""The command line end to end: outputs, bad input (one line, exit 2, nothing half-written)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from scan2terrain.cli import main
+from tests.conftest import IMAGES, MAPS, write_map
+
+
+def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def leftovers(parent: Path) -> list[str]:
+    return sorted(p.name for p in parent.iterdir())
+
+
+def test_map2world_writes_the_documented_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "w"
+    code, stdout, err = run(capsys, "map2world", MAPS["tb3"], "-o", out)
+    assert code == 0, err
+    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    name = next(p.name for p in (out / "models").iterdir() if not p.name.endswith("_classic"))
+    assert files == sorted([
+        "map/map.pgm", "map/map_classic.yaml", "map/map_gz.yaml", "preview.png",
+        "scan2terrain.yaml", "world_classic.world", "world_gz.sdf",
+        *(f"models/{name}/{f}" for f in (
+            "model.config", "model.sdf", "materials/textures/heightmap.png",
+            "materials/textures/floor.png", "materials/textures/unknown.png",
+            "materials/textures/obstacle.png", "materials/textures/normal.png")),
+        *(f"models/{name}_classic/{f}" for f in (
+            "model.config", "model.sdf", "materials/textures/heightmap.png")),
+    ])
+    assert f"GZ_SIM_RESOURCE_PATH={out}/models gz sim {out}/world_gz.sdf" in stdout
+    assert f"GAZEBO_MODEL_PATH={out}/models gazebo {out}/world_classic.world" in stdout
+    # The effective config can be fed back in.
+    cfg = yaml.safe_load((out / "scan2terrain.yaml").read_text())
+    assert cfg["terrain"]["height"] == 2.0 and cfg["filter"]["kind"] == "thin_wall"
+    code, _, err = run(capsys, "map2world", MAPS["tb3"], "-o", tmp_path / "again",
+                       "--config", out / "scan2terrain.yaml")
+    assert code == 0, err
+
+
+def test_outputs_are_byte_identical_run_to_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for d in ("a", "b"):
+        assert run(capsys, "map2world", MAPS["warehouse"], "-o", tmp_path / d)[0] == 0
+    a = {p.relative_to(tmp_path / "a"): p.read_bytes() for p in (tmp_path / "a").rglob("*") if p.is_file()}
+    b = {p.relative_to(tmp_path / "b"): p.read_bytes() for p in (tmp_path / "b").rglob("*") if p.is_file()}
+    assert a == b
+
+
+def test_image2world(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "img"
+    code, _, err = run(capsys, "image2world", IMAGES["winding_valley"], "-o", out,
+                       "--resolution", "0.5", "--height", "12", "--simulator", "gz", "--no-filter")
+    assert code == 0, err
+    model = next((out / "models").iterdir())
+    with Image.open(model / "materials/textures/heightmap.png") as im:
+        png = np.asarray(im)
+    with Image.open(IMAGES["winding_valley"]) as im:
+        src = np.asarray(im.convert("L"))
+    assert png.shape == (513, 513)  # already 2^n+1: no padding, no stretching
+    # Heights are scaled so the brightest pixel is full scale and size.z is its true height.
+    sdf = (model / "model.sdf").read_text()
+    top = float(src.max()) / 255 * 12
+    assert f"<size>256.5 256.5 {round(top, 9)!r}</size>" in sdf  # 513 px * 0.5 m, gz sampling 1
+    np.testing.assert_allclose(png / 255 * top, src / 255 * 12, atol=top / 255)
+    assert not (out / "map").exists()  # an image is not an occupancy map
+
+
+def test_help_lists_commands_with_examples(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    assert "map2world" in text and "image2world" in text and "examples:" in text
+
+
+def test_help_does_not_import_heavy_modules() -> None:
+    code = ("import sys; from scan2terrain.cli import build_parser; build_parser();"
+            "print(sorted(m for m in ('numpy','PIL','lxml','scipy','yaml') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+# --- bad input --------------------------------------------------------------------------------
+
+def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
+    good = write_map(tmp / "good", np.full((10, 10), 254, np.uint8))
+    cases: dict[str, tuple[list[str], str]] = {}
+    (tmp / "malformed.yaml").write_text("image: [unclosed\n")
+    cases["malformed yaml"] = (["map2world", str(tmp / "malformed.yaml")], "malformed YAML")
+    cases["missing yaml"] = (["map2world", str(tmp / "nope.yaml")], "map YAML file not found")
+    y = write_map(tmp / "noimg", np.zeros((2, 2), np.uint8))
+    (tmp / "noimg/m.png").unlink()
+    cases["missing image"] = (["map2world", str(y)], "image file not found")
+    y = write_map(tmp / "zero", np.zeros((2, 2), np.uint8), resolution=0)
+    cases["zero resolution"] = (["map2world", str(y)], "'resolution' must be > 0")
+    y = write_map(tmp / "neg", np.zeros((2, 2), np.uint8), resolution=-1)
+    cases["negative resolution"] = (["map2world", str(y)], "'resolution' must be > 0")
+    y = write_map(tmp / "order", np.zeros((2, 2), np.uint8), occ=0.1, free=0.5)
+    cases["thresholds"] = (["map2world", str(y)], "thresholds out of order")
+    y = write_map(tmp / "notimg", np.zeros((2, 2), np.uint8))
+    (tmp / "notimg/m.png").write_text("plain text, not a picture")
+    cases["not an image"] = (["map2world", str(y)], "not an image file")
+    y = write_map(tmp / "trunc", np.random.default_rng(0).integers(0, 255, (300, 300), dtype=np.uint8))
+    data = (tmp / "trunc/m.png").read_bytes()
+    (tmp / "trunc/m.png").write_bytes(data[: len(data) // 3])
+    cases["truncated png"] = (["map2world", str(y)], "cannot decode image")
+    cases["bomb"] = (["map2world", str(good), "--max-pixels", "50"], "over the limit of 50")
+    (tmp / "t.txt").write_text("hello")
+    cases["image2world not an image"] = (["image2world", str(tmp / "t.txt")], "not an image file")
+    cases["bad option value"] = (["map2world", str(good), "--upsample", "0"], "terrain.upsample")
+    (tmp / "cfg.yaml").write_text("terrain:\n  hieght: 3\n")
+    cases["unknown config key"] = (["map2world", str(good), "--config", str(tmp / "cfg.yaml")],
+                                   "unknown config key 'terrain.hieght'")
+    return cases
+
+
+@pytest.mark.parametrize("case", [
+    "malformed yaml", "missing yaml", "missing image", "zero resolution", "negative resolution",
+    "thresholds", "not an image", "truncated png", "bomb", "image2world not an image",
+    "bad option value", "unknown config key"])
+def test_bad_input_one_line_exit_2_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    args, message = _bad_inputs(tmp_path / "in")[case]
+    outdir = tmp_path / "outs"
+    outdir.mkdir()
+    code, stdout, err = run(capsys, *args, "-o", outdir / "world")
+    assert code == 2
+    assert message in err
+    assert err.count("\n") == 1 and err.startswith("scan2terrain: error: ")
+    assert leftovers(outdir) == []  # nothing half-written, not even a temporary folder
+
+
+def test_existing_output_refused_without_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    code, _, err = run(capsys, "map2world", good, "-o", out)
+    assert code == 2 and "output folder exists (use --overwrite" in err
+    assert leftovers(out) == ["keep.txt"] and leftovers(tmp_path) == ["in", "o"]
+    code, _, err = run(capsys, "map2world", good, "-o", out, "--overwrite")
+    assert code == 0, err
+    assert not (out / "keep.txt").exists() and (out / "world_gz.sdf").exists()
+    assert leftovers(tmp_path) == ["in", "o"]
+
+
+def test_failure_midway_leaves_old_output_intact(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
+    out = tmp_path / "o"
+    assert run(capsys, "map2world", good, "-o", out)[0] == 0
+    before = sorted(p.name for p in out.rglob("*"))
+
+    def boom(*a: object, **k: object) -> bytes:
+        raise OSError("disk full")
+
+    monkeypatch.setattr("scan2terrain.exporters.sdf.world_sdf", boom)
+    code, _, err = run(capsys, "map2world", good, "-o", out, "--overwrite")
+    assert code == 1 and "disk full" in err
+    assert sorted(p.name for p in out.rglob("*")) == before
+    assert leftovers(tmp_path) == ["in", "o"]
