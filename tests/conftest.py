@@ -27,8 +27,15 @@ def real_map(request: pytest.FixtureRequest) -> Path:
 
 
 def write_map(
-    folder: Path, pixels: np.ndarray, *, name: str = "m.png", resolution: float = 0.1,
-    origin: str = "[0.0, 0.0, 0.0]", extra: str = "", occ: float = 0.65, free: float = 0.196,
+    folder: Path,
+    pixels: np.ndarray,
+    *,
+    name: str = "m.png",
+    resolution: float = 0.1,
+    origin: str = "[0.0, 0.0, 0.0]",
+    extra: str = "",
+    occ: float = 0.65,
+    free: float = 0.196,
 ) -> Path:
     """Write a map_server map (image from ``pixels``, top row first) and return the YAML path."""
     from PIL import Image

@@ -25,44 +25,92 @@ def leftovers(parent: Path) -> list[str]:
     return sorted(p.name for p in parent.iterdir())
 
 
-def test_map2world_writes_the_documented_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_map2world_writes_the_documented_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "w"
     code, stdout, err = run(capsys, "map2world", MAPS["tb3"], "-o", out)
     assert code == 0, err
     files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     name = next(p.name for p in (out / "models").iterdir() if not p.name.endswith("_classic"))
-    assert files == sorted([
-        "map/map.pgm", "map/map_classic.yaml", "map/map_gz.yaml", "preview.png",
-        "scan2terrain.yaml", "world_classic.world", "world_gz.sdf",
-        *(f"models/{name}/{f}" for f in (
-            "model.config", "model.sdf", "materials/textures/heightmap.png",
-            "materials/textures/floor.png", "materials/textures/unknown.png",
-            "materials/textures/obstacle.png", "materials/textures/normal.png")),
-        *(f"models/{name}_classic/{f}" for f in (
-            "model.config", "model.sdf", "materials/textures/heightmap.png")),
-    ])
+    assert files == sorted(
+        [
+            "map/map.pgm",
+            "map/map_classic.yaml",
+            "map/map_gz.yaml",
+            "preview.png",
+            "scan2terrain.yaml",
+            "world_classic.world",
+            "world_gz.sdf",
+            *(
+                f"models/{name}/{f}"
+                for f in (
+                    "model.config",
+                    "model.sdf",
+                    "materials/textures/heightmap.png",
+                    "materials/textures/floor.png",
+                    "materials/textures/unknown.png",
+                    "materials/textures/obstacle.png",
+                    "materials/textures/normal.png",
+                )
+            ),
+            *(
+                f"models/{name}_classic/{f}"
+                for f in ("model.config", "model.sdf", "materials/textures/heightmap.png")
+            ),
+        ]
+    )
     assert f"GZ_SIM_RESOURCE_PATH={out}/models gz sim {out}/world_gz.sdf" in stdout
     assert f"GAZEBO_MODEL_PATH={out}/models gazebo {out}/world_classic.world" in stdout
     # The effective config can be fed back in.
     cfg = yaml.safe_load((out / "scan2terrain.yaml").read_text())
     assert cfg["terrain"]["height"] == 2.0 and cfg["filter"]["kind"] == "thin_wall"
-    code, _, err = run(capsys, "map2world", MAPS["tb3"], "-o", tmp_path / "again",
-                       "--config", out / "scan2terrain.yaml")
+    code, _, err = run(
+        capsys,
+        "map2world",
+        MAPS["tb3"],
+        "-o",
+        tmp_path / "again",
+        "--config",
+        out / "scan2terrain.yaml",
+    )
     assert code == 0, err
 
 
-def test_outputs_are_byte_identical_run_to_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_outputs_are_byte_identical_run_to_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     for d in ("a", "b"):
         assert run(capsys, "map2world", MAPS["warehouse"], "-o", tmp_path / d)[0] == 0
-    a = {p.relative_to(tmp_path / "a"): p.read_bytes() for p in (tmp_path / "a").rglob("*") if p.is_file()}
-    b = {p.relative_to(tmp_path / "b"): p.read_bytes() for p in (tmp_path / "b").rglob("*") if p.is_file()}
+    a = {
+        p.relative_to(tmp_path / "a"): p.read_bytes()
+        for p in (tmp_path / "a").rglob("*")
+        if p.is_file()
+    }
+    b = {
+        p.relative_to(tmp_path / "b"): p.read_bytes()
+        for p in (tmp_path / "b").rglob("*")
+        if p.is_file()
+    }
     assert a == b
 
 
 def test_image2world(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "img"
-    code, _, err = run(capsys, "image2world", IMAGES["winding_valley"], "-o", out,
-                       "--resolution", "0.5", "--height", "12", "--simulator", "gz", "--no-filter")
+    code, _, err = run(
+        capsys,
+        "image2world",
+        IMAGES["winding_valley"],
+        "-o",
+        out,
+        "--resolution",
+        "0.5",
+        "--height",
+        "12",
+        "--simulator",
+        "gz",
+        "--no-filter",
+    )
     assert code == 0, err
     model = next((out / "models").iterdir())
     with Image.open(model / "materials/textures/heightmap.png") as im:
@@ -87,13 +135,16 @@ def test_help_lists_commands_with_examples(capsys: pytest.CaptureFixture[str]) -
 
 
 def test_help_does_not_import_heavy_modules() -> None:
-    code = ("import sys; from scan2terrain.cli import build_parser; build_parser();"
-            "print(sorted(m for m in ('numpy','PIL','lxml','scipy','yaml') if m in sys.modules))")
+    code = (
+        "import sys; from scan2terrain.cli import build_parser; build_parser();"
+        "print(sorted(m for m in ('numpy','PIL','lxml','scipy','yaml') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
 
 # --- bad input --------------------------------------------------------------------------------
+
 
 def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     good = write_map(tmp / "good", np.full((10, 10), 254, np.uint8))
@@ -113,7 +164,9 @@ def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     y = write_map(tmp / "notimg", np.zeros((2, 2), np.uint8))
     (tmp / "notimg/m.png").write_text("plain text, not a picture")
     cases["not an image"] = (["map2world", str(y)], "not an image file")
-    y = write_map(tmp / "trunc", np.random.default_rng(0).integers(0, 255, (300, 300), dtype=np.uint8))
+    y = write_map(
+        tmp / "trunc", np.random.default_rng(0).integers(0, 255, (300, 300), dtype=np.uint8)
+    )
     data = (tmp / "trunc/m.png").read_bytes()
     (tmp / "trunc/m.png").write_bytes(data[: len(data) // 3])
     cases["truncated png"] = (["map2world", str(y)], "cannot decode image")
@@ -122,29 +175,46 @@ def _bad_inputs(tmp: Path) -> dict[str, tuple[list[str], str]]:
     cases["image2world not an image"] = (["image2world", str(tmp / "t.txt")], "not an image file")
     cases["bad option value"] = (["map2world", str(good), "--upsample", "0"], "terrain.upsample")
     (tmp / "cfg.yaml").write_text("terrain:\n  hieght: 3\n")
-    cases["unknown config key"] = (["map2world", str(good), "--config", str(tmp / "cfg.yaml")],
-                                   "unknown config key 'terrain.hieght'")
+    cases["unknown config key"] = (
+        ["map2world", str(good), "--config", str(tmp / "cfg.yaml")],
+        "unknown config key 'terrain.hieght'",
+    )
     return cases
 
 
-@pytest.mark.parametrize("case", [
-    "malformed yaml", "missing yaml", "missing image", "zero resolution", "negative resolution",
-    "thresholds", "not an image", "truncated png", "bomb", "image2world not an image",
-    "bad option value", "unknown config key"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "malformed yaml",
+        "missing yaml",
+        "missing image",
+        "zero resolution",
+        "negative resolution",
+        "thresholds",
+        "not an image",
+        "truncated png",
+        "bomb",
+        "image2world not an image",
+        "bad option value",
+        "unknown config key",
+    ],
+)
 def test_bad_input_one_line_exit_2_nothing_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
 ) -> None:
     args, message = _bad_inputs(tmp_path / "in")[case]
     outdir = tmp_path / "outs"
     outdir.mkdir()
-    code, stdout, err = run(capsys, *args, "-o", outdir / "world")
+    code, _, err = run(capsys, *args, "-o", outdir / "world")
     assert code == 2
     assert message in err
     assert err.count("\n") == 1 and err.startswith("scan2terrain: error: ")
     assert leftovers(outdir) == []  # nothing half-written, not even a temporary folder
 
 
-def test_existing_output_refused_without_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_existing_output_refused_without_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
     out = tmp_path / "o"
     out.mkdir()

@@ -208,6 +208,33 @@ def test_16bit_fallback_scales_to_the_brightest_sample(tmp_path: Path) -> None:
     _check_gz_heights(probe, wide)
 
 
+def test_large_16bit_image_skips_the_failing_maxelevation_call(tmp_path: Path) -> None:
+    ramp = (np.arange(257 * 257, dtype=np.uint32).reshape(257, 257) % 50000).astype(np.uint16)
+    probe = _probe(tmp_path, ramp, "big16")
+    assert probe.vert_size == 257
+    assert probe.max_elevation_called is False
+    assert probe.max_elevation_reported is None
+    assert probe.max_elevation_fallback is True
+    assert probe.heights is not None
+    np.testing.assert_allclose(probe.heights, ramp / ramp.max() * 10.0, atol=1e-4)
+
+
+def test_gz_common_max_color_quirks_are_reproduced(tmp_path: Path) -> None:
+    """What Gazebo itself does, warts included (gz-common 4.5.1 + ignition-math 6).
+
+    Image::MaxColor builds math::Color(v, v, v) from 0..255 bytes, and Color's clamp
+    only divides values > 1 by 255: a pixel of value 1 becomes 1.0 and counts as the
+    brightest, so an image whose real maximum is 128 no longer reaches size.z.
+    """
+    pixels = np.zeros((5, 5), dtype=np.uint8)
+    pixels[0, 0] = 128
+    pixels[4, 4] = 1
+    probe = _probe(tmp_path, pixels, "one")
+    assert probe.max_elevation == pytest.approx(1.0)
+    assert probe.heights is not None
+    assert probe.heights.max() == pytest.approx(128 / 255 * 10.0, abs=1e-5)
+
+
 # --------------------------------------------------------------------------- classic
 
 

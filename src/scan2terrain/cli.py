@@ -25,45 +25,105 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--config", type=Path, help="YAML config file (see configs/); flags override it")
     g = p.add_argument_group("world")
-    g.add_argument("--simulator", choices=("gz", "classic", "both"), dest="world.simulator",
-                   help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both (default: both)")
-    g.add_argument("--model-name", dest="world.model_name",
-                   help="terrain model name (default: input name + content digest, unique)")
-    g.add_argument("--sampling", type=int, dest="world.sampling",
-                   help="heightmap vertex sampling (default: 1 for gz, 2 for classic)")
+    g.add_argument(
+        "--simulator",
+        choices=("gz", "classic", "both"),
+        dest="world.simulator",
+        help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both (default: both)",
+    )
+    g.add_argument(
+        "--model-name",
+        dest="world.model_name",
+        help="terrain model name (default: input name + content digest, unique)",
+    )
+    g.add_argument(
+        "--sampling",
+        type=int,
+        dest="world.sampling",
+        help="heightmap vertex sampling (default: 1 for gz, 2 for classic)",
+    )
     t = p.add_argument_group("terrain")
-    t.add_argument("--height", type=float, dest="terrain.height",
-                   help="metres: wall height (maps) or height of white (images) (default 2.0)")
-    t.add_argument("--upsample", type=int, dest="terrain.upsample",
-                   help="integer factor: each cell becomes k x k pixels (default 1)")
-    t.add_argument("--bit-depth", type=int, choices=(8, 16), dest="terrain.bit_depth",
-                   help="heightmap PNG depth; 16 needs gz-sim Garden or newer (default 8)")
+    t.add_argument(
+        "--height",
+        type=float,
+        dest="terrain.height",
+        help="metres: wall height (maps) or height of white (images) (default 2.0)",
+    )
+    t.add_argument(
+        "--upsample",
+        type=int,
+        dest="terrain.upsample",
+        help="integer factor: each cell becomes k x k pixels (default 1)",
+    )
+    t.add_argument(
+        "--bit-depth",
+        type=int,
+        choices=(8, 16),
+        dest="terrain.bit_depth",
+        help="heightmap PNG depth; 16 needs gz-sim Garden or newer (default 8)",
+    )
     c = p.add_argument_group("canvas (the paper's options, in cells)")
     c.add_argument("--width", type=int, dest="canvas.width", help="crop or extend to this width")
-    c.add_argument("--canvas-height", type=int, dest="canvas.height",
-                   help="crop or extend to this height")
-    c.add_argument("--offset-x", type=int, dest="canvas.offset_x",
-                   help="shift the input right by this many cells (negative crops)")
-    c.add_argument("--offset-y", type=int, dest="canvas.offset_y",
-                   help="shift the input up by this many cells (negative crops)")
-    c.add_argument("--invert", action="store_const", const=True, dest="canvas.invert",
-                   help="swap free and occupied (maps) or black and white (images)")
+    c.add_argument(
+        "--canvas-height", type=int, dest="canvas.height", help="crop or extend to this height"
+    )
+    c.add_argument(
+        "--offset-x",
+        type=int,
+        dest="canvas.offset_x",
+        help="shift the input right by this many cells (negative crops)",
+    )
+    c.add_argument(
+        "--offset-y",
+        type=int,
+        dest="canvas.offset_y",
+        help="shift the input up by this many cells (negative crops)",
+    )
+    c.add_argument(
+        "--invert",
+        action="store_const",
+        const=True,
+        dest="canvas.invert",
+        help="swap free and occupied (maps) or black and white (images)",
+    )
     f = p.add_argument_group("filter")
-    f.add_argument("--filter", choices=("none", "median", "majority", "paper", "thin_wall"),
-                   dest="filter.kind",
-                   help="paper = the paper's modified median (keeps horizontal/vertical runs of 3);"
-                   " thin_wall = it, also keeping diagonal walls (default)")
-    f.add_argument("--no-filter", action="store_const", const=False, dest="filter.enabled",
-                   help="turn filtering off")
-    f.add_argument("--filter-size", type=int, dest="filter.size",
-                   help="window side for median/majority (odd, default 3)")
-    f.add_argument("--speckle-min-cells", type=int, dest="filter.speckle_min_cells",
-                   help="remove occupied specks smaller than this many cells (default off)")
+    f.add_argument(
+        "--filter",
+        choices=("none", "median", "majority", "paper", "thin_wall"),
+        dest="filter.kind",
+        help="paper = the paper's modified median (keeps horizontal/vertical runs of 3);"
+        " thin_wall = it, also keeping diagonal walls (default)",
+    )
+    f.add_argument(
+        "--no-filter",
+        action="store_const",
+        const=False,
+        dest="filter.enabled",
+        help="turn filtering off",
+    )
+    f.add_argument(
+        "--filter-size",
+        type=int,
+        dest="filter.size",
+        help="window side for median/majority (odd, default 3)",
+    )
+    f.add_argument(
+        "--speckle-min-cells",
+        type=int,
+        dest="filter.speckle_min_cells",
+        help="remove occupied specks smaller than this many cells (default off)",
+    )
     o = p.add_argument_group("output")
-    o.add_argument("--no-preview", action="store_const", const=False, dest="output.preview",
-                   help="do not write preview.png")
-    o.add_argument("--max-pixels", type=int, dest="max_pixels",
-                   help="refuse larger images (default 2^28)")
+    o.add_argument(
+        "--no-preview",
+        action="store_const",
+        const=False,
+        dest="output.preview",
+        help="do not write preview.png",
+    )
+    o.add_argument(
+        "--max-pixels", type=int, dest="max_pixels", help="refuse larger images (default 2^28)"
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
@@ -71,7 +131,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scan2terrain",
-        description="Turn maps, images and scans into Gazebo worlds that line up with the map frame.",
+        description="Turn maps, images and scans into Gazebo worlds lined up with the map frame.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -79,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     m = sub.add_parser(
-        "map2world", help="ROS map_server map (YAML + image) -> Gazebo world folder",
+        "map2world",
+        help="ROS map_server map (YAML + image) -> Gazebo world folder",
         description="Read a map_server map exactly as map_server does, filter it and write a "
         "Gazebo heightmap world (gz-sim and/or Classic), the filtered map as map_server YAML+PGM "
         "lined up with the world, a preview and the effective config.",
@@ -88,24 +149,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument("map", type=Path, help="map_server YAML file")
     _common(m)
-    m.add_argument("--unknown", choices=("free", "obstacle", "height"), dest="terrain.unknown",
-                   help="unknown cells as floor, as walls, or at --unknown-height (default free)")
-    m.add_argument("--unknown-height", type=float, dest="terrain.unknown_height",
-                   help="metres, for --unknown height (default 0.5)")
+    m.add_argument(
+        "--unknown",
+        choices=("free", "obstacle", "height"),
+        dest="terrain.unknown",
+        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
+    )
+    m.add_argument(
+        "--unknown-height",
+        type=float,
+        dest="terrain.unknown_height",
+        help="metres, for --unknown height (default 0.5)",
+    )
 
     i = sub.add_parser(
-        "image2world", help="any image -> Gazebo world folder (luminance is height)",
+        "image2world",
+        help="any image -> Gazebo world folder (luminance is height)",
         description="Read any image (PNG/JPG/TIFF/BMP/PGM, grey/RGB/RGBA/palette/16-bit), take "
         "its luminance as height (white = --height metres) and write a Gazebo heightmap world.",
-        epilog="example:\n  scan2terrain image2world plan.png -o out --resolution 0.05 --height 2\n",
+        epilog="example:\n  scan2terrain image2world plan.png -o out --resolution 0.05 --height 2\n",  # noqa: E501
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     i.add_argument("image", type=Path, help="image file")
     _common(i)
-    i.add_argument("--resolution", type=float, dest="image.resolution",
-                   help="metres per pixel (default 0.05)")
-    i.add_argument("--origin", type=float, nargs="+", metavar=("X", "Y"), dest="image.origin",
-                   help="pose x y [yaw] of the lower-left corner (default: centred on 0, 0)")
+    i.add_argument(
+        "--resolution", type=float, dest="image.resolution", help="metres per pixel (default 0.05)"
+    )
+    i.add_argument(
+        "--origin",
+        type=float,
+        nargs="+",
+        metavar=("X", "Y"),
+        dest="image.origin",
+        help="pose x y [yaw] of the lower-left corner (default: centred on 0, 0)",
+    )
     return parser
 
 
@@ -130,8 +207,11 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, Scan2TerrainError):
             print(f"scan2terrain: error: {exc}", file=sys.stderr)
             return 2
-        print(f"scan2terrain: internal error: {type(exc).__name__}: {exc} "
-              "(run with -v for the traceback, and please report it)", file=sys.stderr)
+        print(
+            f"scan2terrain: internal error: {type(exc).__name__}: {exc} "
+            "(run with -v for the traceback, and please report it)",
+            file=sys.stderr,
+        )
         return 1
 
 
@@ -139,7 +219,9 @@ def _run(args: argparse.Namespace) -> int:
     from scan2terrain import pipeline
     from scan2terrain.config import load_config
 
-    overrides: dict[str, Any] = {k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"}
+    overrides: dict[str, Any] = {
+        k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
+    }
     cfg = load_config(args.config, overrides)
     if args.command == "map2world":
         result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
@@ -171,7 +253,7 @@ def report(result: Any) -> str:
             lines += [
                 "  Gazebo Classic:",
                 f"    GAZEBO_MODEL_PATH={w.models} gazebo {w.world}",
-                "    Classic cannot move a heightmap, so the terrain is centred on the world origin:",
+                "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
                 f"    a map point (x, y) is world (x - {ox:g}, y - {oy:g}).",
             ]
         if w.map_yaml is not None:

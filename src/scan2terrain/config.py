@@ -108,29 +108,60 @@ class Config:
         """Raise :class:`ConfigError` naming the first bad value; return self."""
         c = self
         _check(c.filter.kind in FILTERS, "filter.kind", c.filter.kind, f"one of {FILTERS}")
-        _check(c.filter.size >= 3 and c.filter.size % 2 == 1, "filter.size", c.filter.size, "odd >= 3")
-        _check(c.filter.speckle_min_cells >= 0, "filter.speckle_min_cells",
-               c.filter.speckle_min_cells, ">= 0")
+        _check(
+            c.filter.size >= 3 and c.filter.size % 2 == 1, "filter.size", c.filter.size, "odd >= 3"
+        )
+        _check(
+            c.filter.speckle_min_cells >= 0,
+            "filter.speckle_min_cells",
+            c.filter.speckle_min_cells,
+            ">= 0",
+        )
         _check(c.terrain.height > 0, "terrain.height", c.terrain.height, "> 0 metres")
-        _check(c.terrain.unknown in UNKNOWN_POLICIES, "terrain.unknown", c.terrain.unknown,
-               f"one of {UNKNOWN_POLICIES}")
-        _check(c.terrain.unknown_height >= 0, "terrain.unknown_height", c.terrain.unknown_height,
-               ">= 0 metres")
+        _check(
+            c.terrain.unknown in UNKNOWN_POLICIES,
+            "terrain.unknown",
+            c.terrain.unknown,
+            f"one of {UNKNOWN_POLICIES}",
+        )
+        _check(
+            c.terrain.unknown_height >= 0,
+            "terrain.unknown_height",
+            c.terrain.unknown_height,
+            ">= 0 metres",
+        )
         _check(1 <= c.terrain.upsample <= 16, "terrain.upsample", c.terrain.upsample, "1..16")
         _check(c.terrain.bit_depth in (8, 16), "terrain.bit_depth", c.terrain.bit_depth, "8 or 16")
-        _check(c.world.simulator in SIMULATORS, "world.simulator", c.world.simulator,
-               f"one of {SIMULATORS}")
-        _check(c.world.sampling is None or c.world.sampling >= 1, "world.sampling",
-               c.world.sampling, ">= 1")
+        _check(
+            c.world.simulator in SIMULATORS,
+            "world.simulator",
+            c.world.simulator,
+            f"one of {SIMULATORS}",
+        )
+        _check(
+            c.world.sampling is None or c.world.sampling >= 1,
+            "world.sampling",
+            c.world.sampling,
+            ">= 1",
+        )
         name = c.world.model_name
-        _check(name is None or (name.replace("_", "").replace("-", "").isalnum()),
-               "world.model_name", name, "letters, digits, '_' and '-' only")
+        _check(
+            name is None or (name.replace("_", "").replace("-", "").isalnum()),
+            "world.model_name",
+            name,
+            "letters, digits, '_' and '-' only",
+        )
         _check(c.image.resolution > 0, "image.resolution", c.image.resolution, "> 0 m/pixel")
-        _check(c.image.origin is None or len(c.image.origin) in (2, 3), "image.origin",
-               c.image.origin, "[x, y] or [x, y, yaw]")
+        _check(
+            c.image.origin is None or len(c.image.origin) in (2, 3),
+            "image.origin",
+            c.image.origin,
+            "[x, y] or [x, y, yaw]",
+        )
         _check(c.canvas.width is None or c.canvas.width > 0, "canvas.width", c.canvas.width, "> 0")
-        _check(c.canvas.height is None or c.canvas.height > 0, "canvas.height",
-               c.canvas.height, "> 0")
+        _check(
+            c.canvas.height is None or c.canvas.height > 0, "canvas.height", c.canvas.height, "> 0"
+        )
         _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
         return self
 

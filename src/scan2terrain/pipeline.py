@@ -11,6 +11,7 @@ import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +32,8 @@ from scan2terrain.filters import (
 from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
 from scan2terrain.grids import axis_align, canvas, invert_occupancy, to_trinary, upsample
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+
+ScalarT = TypeVar("ScalarT", bound=np.generic)
 
 #: Ranks used while filtering occupancy, so that unknown sits between free and occupied.
 _RANK_OF = {FREE: 0, UNKNOWN: 1, OCCUPIED: 2}
@@ -76,12 +79,15 @@ def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]
     rank = _apply_filter(rank, f.kind, f.size, fallback="majority")
     if f.speckle_min_cells > 1:
         rank = remove_speckles(
-            rank, value=_RANK_OF[OCCUPIED], min_cells=f.speckle_min_cells, replace_with=_RANK_OF[FREE]
+            rank,
+            value=_RANK_OF[OCCUPIED],
+            min_cells=f.speckle_min_cells,
+            replace_with=_RANK_OF[FREE],
         )
     return np.array([FREE, UNKNOWN, OCCUPIED], dtype=np.int8)[rank]
 
 
-def filter_grey(values: NDArray[np.uint8] | NDArray[np.uint16], cfg: Config) -> NDArray[np.uint8] | NDArray[np.uint16]:
+def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:
     """Apply the configured filter to a grey image (median fallback: greys are ordered)."""
     f = cfg.filter
     if not f.enabled or f.kind == "none":
@@ -89,7 +95,9 @@ def filter_grey(values: NDArray[np.uint8] | NDArray[np.uint16], cfg: Config) -> 
     return _apply_filter(values, f.kind, f.size, fallback="median")
 
 
-def _apply_filter(a, kind: str, size: int, *, fallback: str):  # type: ignore[no-untyped-def]
+def _apply_filter(
+    a: NDArray[ScalarT], kind: str, size: int, *, fallback: Literal["majority", "median"]
+) -> NDArray[ScalarT]:
     if kind == "median":
         return median_filter(a, size=size)
     if kind == "majority":
@@ -101,10 +109,14 @@ def _apply_filter(a, kind: str, size: int, *, fallback: str):  # type: ignore[no
     return a
 
 
-def classify(grid: OccupancyGrid, mode: str, occupied_thresh: float, free_thresh: float) -> NDArray[np.int8]:
+def classify(
+    grid: OccupancyGrid, mode: str, occupied_thresh: float, free_thresh: float
+) -> NDArray[np.int8]:
     """map_server values to trinary; raw maps are classified with their own thresholds."""
     if mode == "raw":
-        return to_trinary(grid.data, occupied_above=100 * occupied_thresh, free_below=100 * free_thresh)
+        return to_trinary(
+            grid.data, occupied_above=100 * occupied_thresh, free_below=100 * free_thresh
+        )
     return to_trinary(grid.data)
 
 
@@ -120,8 +132,14 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
     c = cfg.canvas
     trinary, origin = canvas(
-        trinary, grid.origin, grid.resolution, width=c.width, height=c.height,
-        offset_x=c.offset_x, offset_y=c.offset_y, fill=UNKNOWN,
+        trinary,
+        grid.origin,
+        grid.resolution,
+        width=c.width,
+        height=c.height,
+        offset_x=c.offset_x,
+        offset_y=c.offset_y,
+        fill=UNKNOWN,
     )
     if c.invert:
         trinary = invert_occupancy(trinary)
@@ -130,16 +148,27 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
     t = cfg.terrain
     fine, fine_res = upsample(aligned, grid.resolution, t.upsample)
-    heights = occupancy_to_heights(fine, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height)
+    heights = occupancy_to_heights(
+        fine, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height
+    )
     pad = unknown_level(t.unknown, wall_height=t.height, unknown_height=t.unknown_height)
     hm = make_heightmap(
         HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
-        bit_depth=t.bit_depth, pad_height=pad,
+        bit_depth=t.bit_depth,
+        pad_height=pad,
     )
     levels = (0.0, pad, t.height)
     map_out = OccupancyGrid(aligned, grid.resolution, world_origin)
-    return _write(out, cfg, overwrite, Path(yaml_path), hm, levels, map_out,
-                  preview_png(trinary, filtered, occupancy=True))
+    return _write(
+        out,
+        cfg,
+        overwrite=overwrite,
+        source=Path(yaml_path),
+        hm=hm,
+        levels=levels,
+        map_out=map_out,
+        preview=preview_png(trinary, filtered, occupancy=True),
+    )
 
 
 def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
@@ -157,8 +186,16 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
         o = cfg.image.origin
         origin = Pose2D(o[0], o[1], o[2] if len(o) > 2 else 0.0)
     c = cfg.canvas
-    values, origin = canvas(values, origin, res, width=c.width, height=c.height,
-                            offset_x=c.offset_x, offset_y=c.offset_y, fill=0)
+    values, origin = canvas(
+        values,
+        origin,
+        res,
+        width=c.width,
+        height=c.height,
+        offset_x=c.offset_x,
+        offset_y=c.offset_y,
+        fill=0,
+    )
     if c.invert:
         values = (img.max_value - values).astype(values.dtype)
     filtered = filter_grey(values, cfg)
@@ -168,12 +205,21 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     heights = (fine.astype(np.float32) * np.float32(t.height / img.max_value)).astype(np.float32)
     hm = make_heightmap(
         HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
-        bit_depth=t.bit_depth, pad_height=0.0,
+        bit_depth=t.bit_depth,
+        pad_height=0.0,
     )
     top = float(heights.max(initial=0.0))
     levels = (0.0, top / 2, top)
-    return _write(out, cfg, overwrite, Path(image_path), hm, levels, None,
-                  preview_png(values, filtered, occupancy=False))
+    return _write(
+        out,
+        cfg,
+        overwrite=overwrite,
+        source=Path(image_path),
+        hm=hm,
+        levels=levels,
+        map_out=None,
+        preview=preview_png(values, filtered, occupancy=False),
+    )
 
 
 # --- writing ---------------------------------------------------------------------------------
@@ -198,8 +244,15 @@ def model_name_for(source: Path, png: bytes, cfg: Config) -> str:
 
 
 def _write(
-    out: Path, cfg: Config, overwrite: bool, source: Path, hm: Heightmap,
-    levels: tuple[float, float, float], map_out: OccupancyGrid | None, preview: bytes,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool,
+    source: Path,
+    hm: Heightmap,
+    levels: tuple[float, float, float],
+    map_out: OccupancyGrid | None,
+    preview: bytes,
 ) -> Result:
     import yaml
 
@@ -222,13 +275,23 @@ def _write(
                     od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
             od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
             od.write(f"{mdir}/model.config", sdf.model_config(p, f"Terrain from {source.name}"))
-            world = od.write(WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment))
+            world = od.write(
+                WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment)
+            )
             map_yaml = None
             if map_out is not None and cfg.output.map_yaml:
-                shifted = map_out.with_data(map_out.data, Pose2D(
-                    map_out.origin.x - p.offset[0], map_out.origin.y - p.offset[1], 0.0))
-                map_yaml = od.write(f"map/map_{sim}.yaml", map_export.map_yaml(
-                    shifted, pgm_name, comment=f"Filtered map in the {sim} world frame.\n{comment}"))
+                shifted = map_out.with_data(
+                    map_out.data,
+                    Pose2D(map_out.origin.x - p.offset[0], map_out.origin.y - p.offset[1], 0.0),
+                )
+                map_yaml = od.write(
+                    f"map/map_{sim}.yaml",
+                    map_export.map_yaml(
+                        shifted,
+                        pgm_name,
+                        comment=f"Filtered map in the {sim} world frame.\n{comment}",
+                    ),
+                )
             result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
         if cfg.output.preview:
             result.preview = od.write("preview.png", preview)
@@ -245,8 +308,10 @@ def _comment(source: Path, hm: Heightmap, p: sdf.Placement) -> str:
         f" .. {hm.z_min + hm.z_range!r} m (size.z = height of the brightest pixel).",
     ]
     if p.simulator == GZ:
-        lines.append(" gz-sim: map frame (x, y) = world (x, y). Collision <pose> and visual <pos>"
-                     " carry the offset (gz-sim #1295, #1803).")
+        lines.append(
+            " gz-sim: map frame (x, y) = world (x, y). Collision <pose> and visual <pos>"
+            " carry the offset (gz-sim #1295, #1803)."
+        )
     else:
         lines.append(
             " Gazebo Classic keeps heightmaps at the world origin (#2167): map point (x, y) is"

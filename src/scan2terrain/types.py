@@ -32,9 +32,9 @@ class Pose2D:
     y: float
     yaw: float = 0.0
 
-    def transform(self, u: NDArray[np.float64], v: NDArray[np.float64]) -> tuple[
-        NDArray[np.float64], NDArray[np.float64]
-    ]:
+    def transform(
+        self, u: NDArray[np.float64], v: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Map grid-local metric coordinates (u along columns, v along rows) to the map frame."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return self.x + c * u - s * v, self.y + s * u + c * v
@@ -60,7 +60,9 @@ class OccupancyGrid:
 
     def __post_init__(self) -> None:
         if self.data.ndim != 2 or self.data.dtype != np.int8:
-            raise ValueError(f"data must be a 2D int8 array, got {self.data.dtype} {self.data.shape}")
+            raise ValueError(
+                f"data must be a 2D int8 array, got {self.data.dtype} {self.data.shape}"
+            )
         if not (self.resolution > 0 and math.isfinite(self.resolution)):
             raise ValueError(f"resolution must be a positive number, got {self.resolution}")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,13 +13,23 @@ from scan2terrain.exporters.heightmap import heightmap_side, make_heightmap
 from scan2terrain.types import HeightGrid, Pose2D
 
 
-def grid(h: np.ndarray, res: float = 0.1, origin: Pose2D = Pose2D(0, 0)) -> HeightGrid:
+def grid(h: np.ndarray, res: float = 0.1, origin: Pose2D | None = None) -> HeightGrid:
+    origin = Pose2D(0, 0) if origin is None else origin
     return HeightGrid(h.astype(np.float32), np.ones(h.shape, bool), res, origin)
 
 
 @pytest.mark.parametrize(
-    ("rows", "cols", "side"), [(1, 1, 3), (3, 3, 3), (4, 2, 5), (129, 50, 129), (130, 1, 257),
-                               (945, 1165, 2049), (2048, 2048, 2049), (2049, 10, 2049)]
+    ("rows", "cols", "side"),
+    [
+        (1, 1, 3),
+        (3, 3, 3),
+        (4, 2, 5),
+        (129, 50, 129),
+        (130, 1, 257),
+        (945, 1165, 2049),
+        (2048, 2048, 2049),
+        (2049, 10, 2049),
+    ],
 )
 def test_side(rows: int, cols: int, side: int) -> None:
     assert heightmap_side(rows, cols) == side
@@ -68,3 +79,17 @@ def test_size_per_simulator() -> None:
 def test_rotated_grid_refused() -> None:
     with pytest.raises(ValueError, match="axis-aligned"):
         make_heightmap(grid(np.zeros((2, 2)), origin=Pose2D(0, 0, 0.1)))
+
+
+def test_map_export_round_trips_through_map_server(tmp_path: Path) -> None:
+    from scan2terrain.exporters.mapserver import map_pgm, map_yaml
+    from scan2terrain.readers import read_map_yaml
+    from scan2terrain.types import OccupancyGrid
+
+    data = np.random.default_rng(3).choice(np.array([-1, 0, 100], np.int8), (7, 11))
+    grid = OccupancyGrid(data, 0.05, Pose2D(-1.5, 2.25, 0.0))
+    (tmp_path / "m.pgm").write_bytes(map_pgm(grid))
+    (tmp_path / "m.yaml").write_bytes(map_yaml(grid, "m.pgm", comment="test"))
+    meta, back = read_map_yaml(tmp_path / "m.yaml")
+    np.testing.assert_array_equal(back.data, data)  # unknown stays unknown (205 vs free_thresh)
+    assert (meta.origin.x, meta.origin.y, meta.resolution) == (-1.5, 2.25, 0.05)

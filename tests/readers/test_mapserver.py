@@ -14,8 +14,16 @@ from scan2terrain.readers.mapserver import read_map_metadata
 from tests.conftest import MAPS, write_map
 
 
-def nav2_reference(rgb: np.ndarray, alpha: np.ndarray | None, mode: str, negate: bool,
-                   occ_t: float, free_t: float, full: float = 255.0) -> np.ndarray:
+def nav2_reference(
+    rgb: np.ndarray,
+    *,
+    alpha: np.ndarray | None,
+    mode: str,
+    negate: bool,
+    occ_t: float,
+    free_t: float,
+    full: float = 255.0,
+) -> np.ndarray:
     """Per-pixel transcription of nav2 loadMapFromFile, with plain loops (slow, obvious)."""
     h, w = rgb.shape[:2]
     out = np.zeros((h, w), dtype=np.int8)
@@ -69,7 +77,10 @@ def test_matches_nav2_per_pixel(tmp_path: Path, mode: str, negate: bool, kind: s
     text = yaml_path.read_text().replace("negate: 0", f"negate: {int(negate)}")
     yaml_path.write_text(text)
     _, grid = read_map_yaml(yaml_path)
-    np.testing.assert_array_equal(grid.data, nav2_reference(rgb, alpha, mode, negate, 0.65, 0.25))
+    np.testing.assert_array_equal(
+        grid.data,
+        nav2_reference(rgb, alpha=alpha, mode=mode, negate=negate, occ_t=0.65, free_t=0.25),
+    )
 
 
 def test_sixteen_bit_png(tmp_path: Path) -> None:
@@ -93,8 +104,10 @@ def test_jpeg_and_relative_image_path(tmp_path: Path) -> None:
     Image.fromarray(img).save(tmp_path / "images/m.jpg", quality=95)
     y = tmp_path / "maps/m.yaml"
     y.parent.mkdir()
-    y.write_text("image: ../images/m.jpg\nresolution: 0.05\norigin: [1, 2, 0.5]\nnegate: false\n"
-                 "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    y.write_text(
+        "image: ../images/m.jpg\nresolution: 0.05\norigin: [1, 2, 0.5]\nnegate: false\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     meta, grid = read_map_yaml(y)
     assert meta.image == (tmp_path / "images/m.jpg").resolve()
     assert (meta.origin.x, meta.origin.y, meta.origin.yaw) == (1.0, 2.0, 0.5)
@@ -104,8 +117,10 @@ def test_jpeg_and_relative_image_path(tmp_path: Path) -> None:
 def test_real_maps_have_the_documented_classes(real_map: Path) -> None:
     """Class fractions as measured by the fixture set's own README (independent tooling)."""
     expected = {  # occupied, free, unknown fractions under each map's own YAML
-        "willow": (0.012, 0.499, 0.489), "tb3": (0.005, 0.054, 0.941),
-        "levine": (0.002, 0.998, 0.000), "warehouse": (0.018, 0.845, 0.137),
+        "willow": (0.012, 0.499, 0.489),
+        "tb3": (0.005, 0.054, 0.941),
+        "levine": (0.002, 0.998, 0.000),
+        "warehouse": (0.018, 0.845, 0.137),
     }
     key = next(k for k, v in MAPS.items() if v == real_map)
     meta, grid = read_map_yaml(real_map)
@@ -125,28 +140,57 @@ def test_warehouse_reads_non_default_fields() -> None:
 @pytest.mark.parametrize(
     ("body", "message"),
     [
-        ("image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\nfree_thresh: 0.2\n",
-         "missing required key 'occupied_thresh'"),
-        ("image: m.png\nresolution: 0\norigin: [0, 0, 0]\nnegate: 0\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'resolution' must be > 0"),
-        ("image: m.png\nresolution: -0.05\norigin: [0, 0, 0]\nnegate: 0\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'resolution' must be > 0"),
-        ("image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
-         "occupied_thresh: 0.2\nfree_thresh: 0.65\n", "thresholds out of order"),
-        ("image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
-         "occupied_thresh: 1.5\nfree_thresh: 0.2\n", "thresholds out of order"),
-        ("image: m.png\nresolution: 0.1\norigin: [0, zero]\nnegate: 0\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'origin' must hold numbers"),
-        ("image: m.png\nresolution: 0.1\norigin: 3\nnegate: 0\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'origin' must be a list"),
-        ("image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 2\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'negate' must be"),
-        ("image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\nmode: fancy\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "'mode' must be one of"),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\nfree_thresh: 0.2\n",
+            "missing required key 'occupied_thresh'",
+        ),
+        (
+            "image: m.png\nresolution: 0\norigin: [0, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'resolution' must be > 0",
+        ),
+        (
+            "image: m.png\nresolution: -0.05\norigin: [0, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'resolution' must be > 0",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 0.2\nfree_thresh: 0.65\n",
+            "thresholds out of order",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 1.5\nfree_thresh: 0.2\n",
+            "thresholds out of order",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, zero]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'origin' must hold numbers",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: 3\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'origin' must be a list",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 2\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'negate' must be",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\nmode: fancy\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "'mode' must be one of",
+        ),
         ("image: m.png\nresolution: [0.1\n", "malformed YAML at line"),
         ("just a string\n", "expected a map_server YAML mapping"),
-        ("image: nothere.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
-         "occupied_thresh: 0.65\nfree_thresh: 0.2\n", "image file not found"),
+        (
+            "image: nothere.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            "image file not found",
+        ),
     ],
 )
 def test_bad_yaml(tmp_path: Path, body: str, message: str) -> None:

@@ -104,7 +104,9 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
     n = heightmap_side(rows, cols)
     left, bottom = (n - cols) // 2, (n - rows) // 2
     canvas = np.full((n, n), pad_height, dtype=np.float32)
-    canvas[bottom : bottom + rows, left : left + cols] = np.where(grid.known, grid.heights, pad_height)
+    canvas[bottom : bottom + rows, left : left + cols] = np.where(
+        grid.known, grid.heights, pad_height
+    )
 
     z_min = min(0.0, float(canvas.min()))
     z_max = float(canvas.max())
@@ -123,6 +125,11 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
         np.array((mid - left + 0.5) * r), np.array((mid - bottom + 0.5) * r)
     )
     return Heightmap(
-        np.ascontiguousarray(pixels), r, (float(cx), float(cy)), z_min, z_range, (left, bottom),
+        np.ascontiguousarray(pixels),
+        r,
+        (float(cx), float(cy)),
+        z_min,
+        z_range,
+        (left, bottom),
         (rows, cols),
     )

@@ -35,7 +35,11 @@ def trinary_shades(data: NDArray[np.int8]) -> NDArray[np.uint8]:
 
 
 def map_yaml(grid: OccupancyGrid, image_name: str, *, comment: str = "") -> bytes:
-    """A map_server YAML for ``image_name`` written by :func:`map_pgm` (thresholds 0.65/0.25)."""
+    """A map_server YAML for ``image_name`` written by :func:`map_pgm`.
+
+    The thresholds are ROS1 map_saver's 0.65/0.196, not nav2's 0.65/0.25: with 0.25, map_server
+    reads the unknown shade 205 (occupancy 0.196) back as free.
+    """
     o = grid.origin
     lines = [f"# {line}" for line in comment.splitlines()] + [
         f"image: {image_name}",
@@ -44,6 +48,6 @@ def map_yaml(grid: OccupancyGrid, image_name: str, *, comment: str = "") -> byte
         f"origin: [{round(o.x, 9)!r}, {round(o.y, 9)!r}, {round(o.yaw, 9)!r}]",
         "negate: 0",
         "occupied_thresh: 0.65",
-        "free_thresh: 0.25",
+        "free_thresh: 0.196",
     ]
     return ("\n".join(lines) + "\n").encode()

@@ -7,7 +7,6 @@ A failure at any point leaves the target as it was (absent, or the old folder un
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -25,10 +24,13 @@ class OutputDir:
         parent = self.target.absolute().parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
-            self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".part",
-                                             dir=parent))
+            self.tmp = Path(
+                tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".part", dir=parent)
+            )
         except OSError as exc:
-            raise OutputError(f"{parent}: cannot create the output folder ({exc.strerror})") from None
+            raise OutputError(
+                f"{parent}: cannot create the output folder ({exc.strerror})"
+            ) from None
         self.files: list[Path] = []
 
     @staticmethod
@@ -47,7 +49,7 @@ class OutputDir:
         return self.target / relative
 
     def commit(self) -> None:
-        os.chmod(self.tmp, 0o755)  # mkdtemp makes it 0700
+        self.tmp.chmod(0o755)  # mkdtemp makes it 0700
         old = None
         if self.target.exists():
             old = self.target.with_name(f".{self.target.name}.old")

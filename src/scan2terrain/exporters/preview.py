@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,7 +17,7 @@ GAP = 8
 RED, BLUE = 1, 2
 
 
-def preview_png(before: NDArray[np.integer], after: NDArray[np.integer], *, occupancy: bool) -> bytes:
+def preview_png(before: NDArray[Any], after: NDArray[Any], *, occupancy: bool) -> bytes:
     """Before and after in grid order (row 0 lowest y), same shape, as a three-panel PNG.
 
     Occupancy grids are drawn in map_saver shades; grey images as they are (scaled to 8 bits).
@@ -44,20 +45,22 @@ def preview_png(before: NDArray[np.integer], after: NDArray[np.integer], *, occu
     canvas[:, 2 * w + 2 * GAP :] = diff
     palette = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)
     palette[RED], palette[BLUE] = (220, 30, 30), (30, 80, 230)
-    img = Image.frombuffer("P", (canvas.shape[1], canvas.shape[0]), canvas.tobytes(), "raw", "P", 0, 1)
+    img = Image.frombuffer(
+        "P", (canvas.shape[1], canvas.shape[0]), canvas.tobytes(), "raw", "P", 0, 1
+    )
     img.putpalette(palette.ravel().tolist())
     buf = io.BytesIO()
     img.save(buf, format="PNG", compress_level=1)  # a preview: speed first
     return buf.getvalue()
 
 
-def _grey(a: NDArray[np.integer], occupancy: bool) -> NDArray[np.uint8]:
+def _grey(a: NDArray[Any], occupancy: bool) -> NDArray[np.uint8]:
     if occupancy:
         return trinary_shades(a.astype(np.int8))
     top = max(int(a.max(initial=0)), 1)
     return (a.astype(np.float64) * (255.0 / top) if top > 255 else a).astype(np.uint8)
 
 
-def _rank(a: NDArray[np.integer]) -> NDArray[np.int8]:
+def _rank(a: NDArray[Any]) -> NDArray[np.int8]:
     """free 0 < unknown 1 < occupied 2."""
     return np.where(a < 0, 1, np.where(a > 0, 2, 0)).astype(np.int8)

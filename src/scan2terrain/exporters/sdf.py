@@ -56,7 +56,9 @@ class Placement:
     offset: tuple[float, float]
 
 
-def placement_for(hm: Heightmap, simulator: str, model_name: str, sampling: int | None) -> Placement:
+def placement_for(
+    hm: Heightmap, simulator: str, model_name: str, sampling: int | None
+) -> Placement:
     s = DEFAULT_SAMPLING[simulator] if sampling is None else sampling
     side = hm.size_xy(simulator, s)
     offset = (0.0, 0.0) if simulator == GZ else hm.centre
@@ -67,7 +69,9 @@ def _fmt(*values: float) -> str:
     return " ".join(repr(round(float(v), 9)) for v in values)
 
 
-def _sub(parent: etree._Element, tag: str, text: str | None = None, **attrib: str) -> etree._Element:
+def _sub(
+    parent: etree._Element, tag: str, text: str | None = None, **attrib: str
+) -> etree._Element:
     el = etree.SubElement(parent, tag, attrib)
     if text is not None:
         el.text = text
@@ -91,7 +95,9 @@ def _textures(hmap: etree._Element, p: Placement, levels: tuple[float, float, fl
         diffuse = [(uri, CLASSIC_NORMAL) for uri, _ in CLASSIC_TEXTURES]
     else:
         base = f"model://{p.model_name}/{TEXTURE_DIR}"
-        diffuse = [(f"{base}/{k}.png", f"{base}/normal.png") for k in ("floor", "unknown", "obstacle")]
+        diffuse = [
+            (f"{base}/{k}.png", f"{base}/normal.png") for k in ("floor", "unknown", "obstacle")
+        ]
     for d, n in diffuse:
         tex = _sub(hmap, "texture")
         _sub(tex, "diffuse", d)
@@ -188,6 +194,4 @@ def texture_pngs() -> dict[str, bytes]:
 
 
 def _bytes(root: etree._Element) -> bytes:
-    return bytes(
-        etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="UTF-8")
-    )
+    return bytes(etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="UTF-8"))

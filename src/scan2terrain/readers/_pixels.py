@@ -1,6 +1,7 @@
 """Opening image files safely and turning them into normalised channel arrays.
 
-Shared by the map_server reader and the arbitrary-image reader. Pillow does the decoding; this module
+Shared by the map_server reader and the arbitrary-image reader. Pillow does the decoding; this
+module
 adds a pixel limit checked before decoding (decompression bombs), one error type for every decoding
 failure, and a uniform float view of the channels whatever the image mode.
 """
@@ -35,7 +36,9 @@ class Channels:
 
     def mean_colour(self) -> NDArray[np.float64]:
         """Mean of R, G and B in [0, 1], shape (H, W) (a grey sample counts three times)."""
-        return self.colour.mean(axis=2, dtype=np.float64) / self.max_value
+        mean: NDArray[np.float64] = self.colour.mean(axis=2, dtype=np.float64)
+        return mean / self.max_value
+
 
 def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
     """Decode ``path`` into :class:`Channels`, refusing bombs, truncation and non-images."""

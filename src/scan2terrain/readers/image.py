@@ -1,9 +1,10 @@
-"""Any picture (PNG, JPG, TIFF, BMP, PGM; grey, RGB, RGBA, palette, 16-bit) as a grey height image."""
+"""Any picture (PNG, JPG, TIFF, BMP, PGM; grey, RGB, RGBA, palette, 16-bit) as a grey image."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +23,7 @@ class GreyImage:
     """
 
     path: Path
-    values: NDArray[np.uint8] | NDArray[np.uint16]
+    values: NDArray[Any]
     max_value: int
 
 

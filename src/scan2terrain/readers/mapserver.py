@@ -112,7 +112,8 @@ def read_map_metadata(path: Path) -> MapMetadata:
     if not 0.0 <= free < occ <= 1.0:
         raise InputError(
             path,
-            f"thresholds out of order: need 0 <= free_thresh ({free}) < occupied_thresh ({occ}) <= 1",
+            f"thresholds out of order: need 0 <= free_thresh ({free}) < occupied_thresh ({occ})"
+            " <= 1",
         )
 
     mode_field = doc.get("mode", "trinary")

@@ -1,0 +1,187 @@
+"""Gazebo's own code checks our worlds.
+
+Every generated world is loaded by SDFormat's parser in strict mode and its terrain rebuilt by
+gz-common's heightmap loader (tests/gazebo/heightmap_probe.cpp, see tests/gazebo_harness.py).
+At the centre of every map cell whose neighbourhood is uniform, the ground must be at the wall
+height where the map is occupied and at the floor where it is free, within 1% of the wall height,
+at the map-frame position of that cell: (x, y) in gz-sim, (x - cx, y - cy) in Gazebo Classic.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scan2terrain import pipeline
+from scan2terrain.config import load_config
+from scan2terrain.readers import read_map_yaml
+from scan2terrain.types import OccupancyGrid
+from tests.conftest import IMAGES, MAPS, write_map
+from tests.gazebo_harness import probe_world, terrain_height
+
+H = 2.0  # wall height used throughout
+
+
+def uniform(data: np.ndarray, radius: int = 1) -> np.ndarray:
+    """Cells whose (2 radius + 1)^2 neighbourhood holds one value (border cells excluded)."""
+    h, w = data.shape
+    core = data[radius : h - radius, radius : w - radius]
+    same = np.ones(core.shape, dtype=bool)
+    for dr in range(-radius, radius + 1):
+        for dc in range(-radius, radius + 1):
+            same &= data[radius + dr : h - radius + dr, radius + dc : w - radius + dc] == core
+    out = np.zeros(data.shape, dtype=bool)
+    out[radius : h - radius, radius : w - radius] = same
+    return out
+
+
+def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = np.indices(grid.shape)
+    return grid.origin.transform((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
+
+
+def build(
+    source: Path, out: Path, *, command: str = "map2world", **overrides: object
+) -> pipeline.Result:
+    cfg = load_config(None, {"terrain.height": H, **overrides})
+    run = pipeline.map2world if command == "map2world" else pipeline.image2world
+    return run(source, out, cfg)
+
+
+def check_world(
+    result: pipeline.Result,
+    reference: OccupancyGrid,
+    tmp: Path,
+    *,
+    radius: int = 1,
+    unknown_level: float = 0.0,
+) -> dict[str, int]:
+    """Compare every world in ``result`` with ``reference`` (map frame); return cells checked."""
+    checked = {}
+    expected_of = {100: H, 0: 0.0, -1: unknown_level}
+    mask = uniform(reference.data, radius)
+    x, y = cell_centres(reference)
+    for w in result.worlds:
+        sim = w.placement.simulator
+        version, probes = probe_world(w.world, [w.models], tmp / f"probe_{sim}")
+        assert version  # parsed strictly by SDFormat
+        (col,) = [p for p in probes if p.kind == "collision"]
+        visuals = [p for p in probes if p.kind == "visual"]
+        assert len(visuals) == 1 and visuals[0].textures == 3 and visuals[0].blends == 2
+        if sim == "gz":
+            # gz-sim rendering places the visual by <pos> alone; it must match the collision.
+            assert visuals[0].pos == pytest.approx(col.pose[:3])
+        ox, oy = w.placement.offset
+        got = terrain_height(col, x[mask] - ox, y[mask] - oy, sim)
+        want = np.vectorize(expected_of.get)(reference.data[mask])
+        bad = np.abs(got - want) > 0.01 * H
+        assert not bad.any(), (
+            f"{sim}: {bad.sum()} of {mask.sum()} cells off, e.g. map cell "
+            f"{np.argwhere(mask)[bad][0]} want {want[bad][0]} got {got[bad][0]}"
+        )
+        checked[sim] = int(mask.sum())
+    return checked
+
+
+@pytest.mark.parametrize("name", sorted(MAPS))
+def test_real_map_unfiltered_lands_in_the_map_frame(tmp_path: Path, name: str) -> None:
+    """Raw map cells (no filter) against the world, through the ORIGINAL map YAML."""
+    result = build(MAPS[name], tmp_path / "w", **{"filter.enabled": False})
+    _, grid = read_map_yaml(MAPS[name])
+    meta_thresholds = pipeline.to_trinary(grid.data)
+    checked = check_world(result, grid.with_data(meta_thresholds), tmp_path)
+    assert checked["gz"] > 1000 and checked["classic"] == checked["gz"]
+
+
+@pytest.mark.parametrize("name", sorted(MAPS))
+def test_filtered_map_export_lines_up_with_the_world(tmp_path: Path, name: str) -> None:
+    """The default filter, checked through the map_server YAML we write for each simulator."""
+    result = build(
+        MAPS[name], tmp_path / "w", **{"terrain.unknown": "height", "terrain.unknown_height": 0.5}
+    )
+    for w in result.worlds:
+        assert w.map_yaml is not None
+        _, exported = read_map_yaml(w.map_yaml)
+        # The exported map is already in this simulator's world frame: offset (0, 0).
+        single = pipeline.Result(
+            out=result.out,
+            worlds=[
+                pipeline.WorldOutput(
+                    w.placement.__class__(**{**w.placement.__dict__, "offset": (0.0, 0.0)}),
+                    w.world,
+                    w.models,
+                    w.map_yaml,
+                )
+            ],
+        )
+        check_world(single, exported, tmp_path / w.placement.simulator, unknown_level=0.5)
+
+
+@pytest.mark.parametrize("yaw_deg", [90, -90, 180])
+def test_quarter_turn_yaw_lands_rotated(tmp_path: Path, yaw_deg: int) -> None:
+    rng = np.random.default_rng(yaw_deg + 1000)
+    pixels = np.full((40, 60), 254, dtype=np.uint8)
+    pixels[5:8, :] = 0  # a long wall
+    pixels[10:35, 20:23] = 0  # a cross wall
+    pixels[rng.random(pixels.shape) < 0.02] = 0
+    pixels[30:38, 40:55] = 205  # unknown patch
+    yaml_path = write_map(
+        tmp_path / "m", pixels, resolution=0.1, origin=f"[2.5, -1.25, {math.radians(yaw_deg)!r}]"
+    )
+    result = build(yaml_path, tmp_path / "w", **{"filter.enabled": False})
+    _, grid = read_map_yaml(yaml_path)
+    assert grid.origin.yaw != 0
+    checked = check_world(result, grid, tmp_path)
+    assert checked["gz"] > 1000
+
+
+def test_arbitrary_yaw_lands_rotated(tmp_path: Path) -> None:
+    pixels = np.full((50, 70), 254, dtype=np.uint8)
+    pixels[10:16, 5:65] = 0
+    pixels[20:45, 30:36] = 0
+    yaml_path = write_map(tmp_path / "m", pixels, resolution=0.05, origin="[1.0, 2.0, 0.5236]")
+    result = build(yaml_path, tmp_path / "w", **{"filter.enabled": False})
+    _, grid = read_map_yaml(yaml_path)
+    # Resampled, not permuted: cells well inside uniform areas must still be right.
+    checked = check_world(result, grid, tmp_path, radius=2)
+    assert checked["gz"] > 1500
+
+
+def test_upsampled_sixteen_bit_gz(tmp_path: Path) -> None:
+    result = build(
+        MAPS["tb3"],
+        tmp_path / "w",
+        **{
+            "filter.enabled": False,
+            "terrain.upsample": 2,
+            "terrain.bit_depth": 16,
+            "world.simulator": "gz",
+        },
+    )
+    _, grid = read_map_yaml(MAPS["tb3"])
+    checked = check_world(result, grid, tmp_path)
+    assert checked["gz"] > 1000
+
+
+def test_image_world_heights(tmp_path: Path) -> None:
+    result = build(
+        IMAGES["winding_valley"],
+        tmp_path / "w",
+        command="image2world",
+        **{"filter.enabled": False, "image.resolution": 0.5, "terrain.height": 12.0},
+    )
+    with Image.open(IMAGES["winding_valley"]) as im:
+        src = np.flipud(np.asarray(im.convert("L"), dtype=float))
+    rows, cols = np.indices(src.shape)
+    x = -src.shape[1] * 0.25 + (cols + 0.5) * 0.5
+    y = -src.shape[0] * 0.25 + (rows + 0.5) * 0.5
+    for w in result.worlds:
+        _, probes = probe_world(w.world, [w.models], tmp_path / w.placement.simulator)
+        (col,) = [p for p in probes if p.kind == "collision"]
+        ox, oy = w.placement.offset
+        got = terrain_height(col, x - ox, y - oy, w.placement.simulator)
+        np.testing.assert_allclose(got, src / 255 * 12.0, atol=0.01 * 12.0)
