@@ -11,7 +11,7 @@ as_root() { if [ "$(id -u)" = 0 ]; then "$@"; elif command -v sudo >/dev/null; t
   echo "setup: need root to run: $*" >&2; return 1; fi; }
 apt_install() {
   export DEBIAN_FRONTEND=noninteractive
-  as_root apt-get update -qq && as_root apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+  as_root apt-get update -qq && as_root apt-get install -y -qq "$@" >/dev/null
 }
 
 PY="${PYTHON:-python3}"

@@ -241,18 +241,20 @@ def report(result: Any) -> str:
     ]
     for w in result.worlds:
         p = w.placement
+        # Absolute paths: the resource variables are read by a simulator started anywhere.
+        models, world = w.models.absolute(), w.world.absolute()
         if p.simulator == "gz":
             lines += [
                 "  gz-sim (Garden or newer; DART physics, the default engine):",
-                f"    GZ_SIM_RESOURCE_PATH={w.models} gz sim {w.world}",
-                f"    (Fortress: IGN_GAZEBO_RESOURCE_PATH={w.models} ign gazebo {w.world})",
+                f"    GZ_SIM_RESOURCE_PATH={models} gz sim {world}",
+                f"    (Fortress: IGN_GAZEBO_RESOURCE_PATH={models} ign gazebo {world})",
                 "    map frame = world frame: a map point (x, y) is world (x, y).",
             ]
         else:
             ox, oy = p.offset
             lines += [
                 "  Gazebo Classic:",
-                f"    GAZEBO_MODEL_PATH={w.models} gazebo {w.world}",
+                f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
                 "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
                 f"    a map point (x, y) is world (x - {ox:g}, y - {oy:g}).",
             ]

@@ -230,7 +230,7 @@ def _refuse_existing(out: Path, overwrite: bool) -> None:
     OutputDir.check_target(out, overwrite)
 
 
-def model_name_for(source: Path, png: bytes, cfg: Config) -> str:
+def model_name_for(source: Path, pixels: bytes, cfg: Config) -> str:
     """A readable, unique, deterministic name: input stem + digest of the terrain and options.
 
     Gazebo Classic caches terrain by model name (~/.gazebo/paging/<name>); a new terrain must never
@@ -239,7 +239,8 @@ def model_name_for(source: Path, png: bytes, cfg: Config) -> str:
     if cfg.world.model_name:
         return cfg.world.model_name
     stem = re.sub(r"[^A-Za-z0-9]+", "_", source.stem).strip("_").lower() or "terrain"
-    digest = hashlib.sha256(png + repr(cfg.to_dict()).encode()).hexdigest()[:8]
+    # Digest of the pixels, not of the PNG bytes: those depend on the zlib build.
+    digest = hashlib.sha256(pixels + repr(cfg.to_dict()).encode()).hexdigest()[:8]
     return f"{stem}_{digest}"
 
 
@@ -257,7 +258,7 @@ def _write(
     import yaml
 
     png = hm.png()
-    base_name = model_name_for(source, png, cfg)
+    base_name = model_name_for(source, hm.pixels.tobytes(), cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
     with atomic_output(out, overwrite=overwrite) as od:
