@@ -109,6 +109,23 @@ def _apply_filter(
     return a
 
 
+def place_on_canvas(
+    data: NDArray[ScalarT], origin: Pose2D, resolution: float, cfg: Config, *, fill: int
+) -> tuple[NDArray[ScalarT], Pose2D]:
+    """The paper's crop/extend and offset options (``cfg.canvas``), keeping georeference."""
+    c = cfg.canvas
+    return canvas(
+        data,
+        origin,
+        resolution,
+        width=c.width,
+        height=c.height,
+        offset_x=c.offset_x,
+        offset_y=c.offset_y,
+        fill=fill,
+    )
+
+
 def classify(
     grid: OccupancyGrid, mode: str, occupied_thresh: float, free_thresh: float
 ) -> NDArray[np.int8]:
@@ -130,18 +147,8 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     _refuse_existing(out, overwrite)
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    c = cfg.canvas
-    trinary, origin = canvas(
-        trinary,
-        grid.origin,
-        grid.resolution,
-        width=c.width,
-        height=c.height,
-        offset_x=c.offset_x,
-        offset_y=c.offset_y,
-        fill=UNKNOWN,
-    )
-    if c.invert:
+    trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
+    if cfg.canvas.invert:
         trinary = invert_occupancy(trinary)
     filtered = filter_occupancy(trinary, cfg)
 
@@ -185,18 +192,8 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     else:
         o = cfg.image.origin
         origin = Pose2D(o[0], o[1], o[2] if len(o) > 2 else 0.0)
-    c = cfg.canvas
-    values, origin = canvas(
-        values,
-        origin,
-        res,
-        width=c.width,
-        height=c.height,
-        offset_x=c.offset_x,
-        offset_y=c.offset_y,
-        fill=0,
-    )
-    if c.invert:
+    values, origin = place_on_canvas(values, origin, res, cfg, fill=0)
+    if cfg.canvas.invert:
         values = (img.max_value - values).astype(values.dtype)
     filtered = filter_grey(values, cfg)
     aligned, world_origin = axis_align(filtered, origin, res, fill=0)
