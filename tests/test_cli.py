@@ -244,3 +244,17 @@ def test_failure_midway_leaves_old_output_intact(
     assert code == 1 and "disk full" in err
     assert sorted(p.name for p in out.rglob("*")) == before
     assert leftovers(tmp_path) == ["in", "o"]
+
+
+def test_image_invert_and_extend_keeps_added_cells_at_the_floor(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    Image.fromarray(np.full((4, 4), 255, np.uint8)).save(tmp_path / "white.png")
+    out = tmp_path / "o"
+    args = ["image2world", tmp_path / "white.png", "-o", out, "--simulator", "gz", "--no-filter"]
+    code, _, err = run(capsys, *args, "--invert", "--width", "6", "--offset-x", "1")
+    assert code == 0, err
+    model = next((out / "models").iterdir())
+    with Image.open(model / "materials/textures/heightmap.png") as im:
+        png = np.asarray(im)
+    assert png.max() == 0  # inverted white is black; the two added columns are black too

@@ -1,8 +1,8 @@
 """Named steps composed into the commands. Only this module and cli.py know every stage.
 
-map2world:   read map YAML -> classify -> canvas/invert -> filter -> align to world axes
+map2world:   read map YAML -> classify -> invert/canvas -> filter -> align to world axes
              -> heights (unknown policy) -> heightmap -> model + world per simulator, map, preview
-image2world: read image -> luminance -> canvas/invert -> filter -> align -> heights -> ... (same)
+image2world: read image -> luminance -> invert/canvas -> filter -> align -> heights -> ... (same)
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ class Result:
     size_z: float = 0.0
     preview: Path | None = None
     config: Path | None = None
-    notes: list[str] = field(default_factory=list)
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -147,9 +146,9 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     _refuse_existing(out, overwrite)
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     if cfg.canvas.invert:
         trinary = invert_occupancy(trinary)
+    trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
 
     aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
@@ -192,9 +191,10 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     else:
         o = cfg.image.origin
         origin = Pose2D(o[0], o[1], o[2] if len(o) > 2 else 0.0)
-    values, origin = place_on_canvas(values, origin, res, cfg, fill=0)
     if cfg.canvas.invert:
         values = (img.max_value - values).astype(values.dtype)
+    # After inverting: cells the canvas adds are black (floor) either way.
+    values, origin = place_on_canvas(values, origin, res, cfg, fill=0)
     filtered = filter_grey(values, cfg)
     aligned, world_origin = axis_align(filtered, origin, res, fill=0)
     t = cfg.terrain
