@@ -33,8 +33,9 @@ if [ "$extra" = "test" ]; then
   for pc in sdformat12 ignition-common4-graphics; do
     pkg-config --exists "$pc" 2>/dev/null || need+=(x)
   done
+  command -v edit_octree >/dev/null || need+=(x)
   if [ "${#need[@]}" -gt 0 ] || ! command -v g++ >/dev/null; then
-    apt_install libsdformat-dev libignition-common-graphics-dev pkg-config g++
+    apt_install libsdformat-dev libignition-common-graphics-dev pkg-config g++ octomap-tools
   fi
   .venv/bin/python -m pip install -q -e ".[test]"
 else

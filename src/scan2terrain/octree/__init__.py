@@ -1,0 +1,1 @@
+"""The voxel octree: OctoMap's probabilistic model, ray casting, queries and .bt files."""

@@ -1,0 +1,354 @@
+"""A sparse voxel octree with OctoMap's probabilistic model.
+
+Voxels are keyed like OctoMap's depth-16 leaves (16 bits per axis, ``key = floor(x / res) + 32768``)
+and stored in dense 8 x 8 x 8 blocks behind a hash of block coordinates: a leaf is a float32
+log-odds, NaN when unknown. Inner nodes are not stored; a coarser depth is computed on demand as the
+maximum of its known voxels, which is what OctoMap's inner nodes hold. OctoMap's pruning is
+lossless (it merges 8 equal children), so the voxel values here equal OctoMap's leaf values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import InputError
+from scan2terrain.octree import _kernels as K
+
+TREE_DEPTH = 16
+#: Largest per-scan dense block index (int32 entries): 64 MB.
+MAX_DENSE = 1 << 24
+#: Local voxel offsets inside a block, in the kernels' order: local = x | y << 3 | z << 6.
+_LOCAL = np.stack(
+    [np.arange(512) & 7, (np.arange(512) >> 3) & 7, (np.arange(512) >> 6) & 7], axis=1
+).astype(np.int64)
+
+
+def logodds(p: float) -> np.float32:
+    """OctoMap's ``logodds``: computed in double, stored as float."""
+    return np.float32(math.log(p / (1.0 - p)))  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """OctoMap's sensor model, as probabilities; defaults are OctoMap's own."""
+
+    hit: float = 0.7
+    miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    occupancy: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("hit", "miss", "clamp_min", "clamp_max", "occupancy"):
+            p = getattr(self, name)
+            if not 0.0 < p < 1.0:
+                raise ValueError(f"{name} must be a probability in (0, 1), got {p}")
+        if not self.miss < 0.5 < self.hit:
+            raise ValueError(f"need miss ({self.miss}) < 0.5 < hit ({self.hit})")
+        if not self.clamp_min < self.clamp_max:
+            raise ValueError("clamp_min must be below clamp_max")
+
+
+@dataclass(frozen=True)
+class InsertStats:
+    """What one insertion did."""
+
+    points: int  #: points given
+    dropped_nonfinite: int  #: NaN / inf points dropped before insertion
+    out_of_range: int  #: end points outside the key range (ray skipped)
+    beams_cut: int  #: beams longer than max_range, cut there (they only clear)
+    hits: int  #: voxels updated as occupied
+    misses: int  #: voxels updated as free
+
+
+class VoxelOctree:
+    """OctoMap-compatible occupancy octree.
+
+    Parameters
+    ----------
+    resolution : float
+        Voxel side in metres.
+    model : SensorModel
+        Hit/miss probabilities, clamping and occupancy threshold.
+    """
+
+    def __init__(self, resolution: float, model: SensorModel | None = None) -> None:
+        if not (resolution > 0 and math.isfinite(resolution)):
+            raise ValueError(f"resolution must be a positive number of metres, got {resolution}")
+        self.resolution = float(resolution)
+        self.model = model or SensorModel()
+        m = self.model
+        self._hit, self._miss = logodds(m.hit), logodds(m.miss)
+        self._cmin, self._cmax = logodds(m.clamp_min), logodds(m.clamp_max)
+        self._occ = logodds(m.occupancy)
+        self._model = np.array([self._hit, self._miss, self._cmin, self._cmax], dtype=np.float32)
+        # Storage starts small and doubles; see _grow.
+        self._values = np.full((1024, 512), np.nan, dtype=np.float32)
+        # Hit words, then one plane of miss words per thread numba may run.
+        threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+        self._bits = np.zeros((1024, 8 * (1 + threads)), dtype=np.uint64)
+        self._block_xyz = np.zeros((1024, 3), dtype=np.int32)
+        self._stamp = np.full(1024, -1, dtype=np.int64)
+        self._table_keys = np.full(4096, K.EMPTY, dtype=np.int64)
+        self._table_slots = np.zeros(4096, dtype=np.int32)
+        self._counts = np.zeros(3, dtype=np.int64)  # see _kernels.N_BLOCKS, N_TOUCHED, STAMP
+        self._touched = np.zeros(1024, dtype=np.int64)
+
+    # --- insertion ------------------------------------------------------------------------
+
+    def insert_scan(
+        self,
+        points: NDArray[np.floating],
+        origin: NDArray[np.floating] | tuple[float, float, float],
+        *,
+        max_range: float = -1.0,
+    ) -> InsertStats:
+        """Insert one scan with ray casting, as OctoMap's ``insertPointCloud``.
+
+        Free: voxels an exact 3D DDA visits from ``origin`` up to (excluding) each end point's
+        voxel; occupied: end point voxels; each voxel updated once per scan, occupied wins. Beams
+        longer than ``max_range`` (metres; < 0 = unlimited) are cut there and only clear.
+        Points are handled as float32, as OctoMap does. NaN/inf points are dropped.
+        """
+        pts, dropped = self._points(points)
+        o = np.asarray(origin, dtype=np.float64).reshape(-1)
+        if o.shape != (3,) or not np.isfinite(o).all():
+            raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
+        o32 = o.astype(np.float32)
+        half = 32768 * self.resolution
+        if (np.abs(o32.astype(np.float64) + self.resolution * 0.5) >= half).any() or not all(
+            K.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32
+        ):
+            raise InputError(
+                None,
+                f"sensor origin {tuple(o)} is outside the octree's key range "
+                f"(+-{half:g} m at {self.resolution} m)",
+            )
+        res = self.resolution
+        ends, kind, stats = K.scan_rays(pts, o32, float(max_range), res)
+        self._next_scan()
+        dense, box = self._scan_box(o32, ends)
+        self._until_done(lambda i: K.prepare(o32, ends, kind, i, res, dense, box, *self._storage()))
+        planes = min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
+        deferred = K.cast_parallel(o32, ends, kind, res, planes, dense, box, *self._storage())
+        self._until_done(
+            lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
+        )
+        hits, misses = self._apply()
+        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
+
+    def _scan_box(
+        self, origin: NDArray[np.float32], ends: NDArray[np.float32]
+    ) -> tuple[NDArray[np.int32], NDArray[np.int64]]:
+        """The dense per-scan block index: the bounding box of the blocks of the origin and the
+        ray ends, one block of margin. Above MAX_DENSE entries (very long beams at a fine
+        resolution) it covers the blocks nearest the origin only; rays leaving it take the
+        serial path."""
+        bounds = K.block_bounds(origin, ends, self.resolution)
+        lo, hi = bounds[0] - 1, bounds[1] + 1
+        ob = K.block_bounds(origin, ends[:0], self.resolution)[0]
+        ext = hi - lo + 1
+        while int(np.prod(ext)) > MAX_DENSE:  # shrink around the origin's block
+            lo = np.maximum(lo, ob - ext // 4)
+            hi = np.minimum(hi, ob + ext // 4)
+            ext = hi - lo + 1
+        box = np.concatenate([lo, ext]).astype(np.int64)
+        return np.full(int(np.prod(ext)), -1, dtype=np.int32), box
+
+    def insert_endpoints(self, points: NDArray[np.floating]) -> InsertStats:
+        """Insert registered points as hits only (no ray casting); each voxel once per call."""
+        pts, dropped = self._points(points)
+        stats = np.zeros(3, dtype=np.int64)
+        self._next_scan()
+        self._until_done(lambda i: K.mark_points(pts, i, self.resolution, *self._storage(), stats))
+        hits, misses = self._apply()
+        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
+
+    def _storage(self) -> tuple[NDArray[Any], ...]:
+        """The arrays the marking kernels share, as they are now (they grow)."""
+        return (
+            self._bits,
+            self._block_xyz,
+            self._stamp,
+            self._table_keys,
+            self._table_slots,
+            self._counts,
+            self._touched,
+        )
+
+    def _next_scan(self) -> int:
+        self._counts[K.STAMP] += 1
+        return int(self._counts[K.STAMP])
+
+    def _until_done(self, call: Callable[[int], tuple[int, int]]) -> None:
+        """Run a resumable kernel to completion, growing the storage when it stops for room."""
+        start = 0
+        while True:
+            start, status = call(start)
+            if status == K.DONE:
+                return
+            self._grow(status)
+
+    def _apply(self) -> tuple[int, int]:
+        hits, misses = K.apply_blocks(
+            self._values, self._bits, self._touched, int(self._counts[K.N_TOUCHED]), self._model
+        )
+        self._counts[K.N_TOUCHED] = 0
+        return int(hits), int(misses)
+
+    def _points(self, points: NDArray[np.floating]) -> tuple[NDArray[np.float32], int]:
+        arr = np.asarray(points)
+        if arr.ndim != 2 or arr.shape[1] != 3:
+            raise InputError(None, f"points must be an (N, 3) array, got shape {arr.shape}")
+        pts = arr.astype(np.float32)
+        finite = np.isfinite(pts).all(axis=1)
+        dropped = int(len(pts) - finite.sum())
+        if dropped:
+            pts = pts[finite]
+        return np.ascontiguousarray(pts), dropped
+
+    def _grow(self, status: int) -> None:
+        """Make room for the insertion kernels: more blocks, a longer list of blocks touched
+        by the scan, or a larger hash table (kept at most half full)."""
+        n_blocks = int(self._counts[K.N_BLOCKS])
+        if status == K.NEED_BLOCKS:
+            new = max(2 * len(self._bits), n_blocks + 4096)
+
+            def grown(a: NDArray[Any], fill: float) -> NDArray[Any]:
+                out = np.empty((new, *a.shape[1:]), dtype=a.dtype)
+                out[:n_blocks] = a[:n_blocks]
+                out[n_blocks:] = fill
+                return out
+
+            self._values = grown(self._values, np.nan)
+            self._bits = grown(self._bits, 0)
+            self._block_xyz = grown(self._block_xyz, 0)
+            self._stamp = grown(self._stamp, -1)
+        elif status == K.NEED_TOUCHED:
+            n = int(self._counts[K.N_TOUCHED])
+            touched = np.empty(2 * len(self._touched), dtype=np.int64)
+            touched[:n] = self._touched[:n]
+            self._touched = touched
+        elif status == K.NEED_TABLE:
+            cap = 1 << max(12, (4 * len(self._bits) - 1).bit_length())
+            self._table_keys, self._table_slots = K.rehash(self._block_xyz, n_blocks, cap)
+
+    # --- queries --------------------------------------------------------------------------
+
+    @property
+    def thresholds(self) -> dict[str, float]:
+        """The model in log-odds (float32 values, as OctoMap stores them)."""
+        return {
+            "hit": float(self._hit),
+            "miss": float(self._miss),
+            "clamp_min": float(self._cmin),
+            "clamp_max": float(self._cmax),
+            "occupancy": float(self._occ),
+        }
+
+    def coord_to_key(self, xyz: NDArray[np.floating]) -> NDArray[np.int64]:
+        """OctoMap keys of metric points (as float32, like OctoMap's point3d); -1 out of range."""
+        p = np.asarray(xyz, dtype=np.float32).astype(np.float64)
+        k = np.floor(p * (1.0 / self.resolution)) + 32768
+        return np.where((k >= 0) & (k < 65536), k, -1).astype(np.int64)
+
+    def key_to_coord(self, keys: NDArray[np.integer]) -> NDArray[np.float64]:
+        """Voxel centres of keys, metres."""
+        return (np.asarray(keys, dtype=np.float64) - 32768 + 0.5) * self.resolution
+
+    def __len__(self) -> int:
+        """Number of known voxels."""
+        return int(np.count_nonzero(~np.isnan(self._values[: self.n_blocks])))
+
+    @property
+    def n_blocks(self) -> int:
+        return int(self._counts[K.N_BLOCKS])
+
+    def logodds_at(self, points: NDArray[np.floating]) -> NDArray[np.float32]:
+        """Log-odds of the voxels holding ``points`` (metres, (N, 3)); NaN where unknown."""
+        return self.logodds_at_keys(self.coord_to_key(np.atleast_2d(points)))
+
+    def logodds_at_keys(self, keys: NDArray[np.integer]) -> NDArray[np.float32]:
+        k = np.ascontiguousarray(np.atleast_2d(keys), dtype=np.int64)
+        return np.asarray(
+            K.lookup(k, self.resolution, self._values, self._table_keys, self._table_slots)
+        )
+
+    def is_occupied(self, logodds: NDArray[np.float32]) -> NDArray[np.bool_]:
+        """OctoMap's isNodeOccupied: log-odds >= the threshold (NaN, unknown, is not)."""
+        return np.asarray(logodds >= self._occ)
+
+    def voxels(self) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
+        """Every known voxel: keys uint16 (M, 3) and log-odds float32 (M,), block by block."""
+        vals = self._values[: self.n_blocks]
+        known = ~np.isnan(vals)
+        slot, local = np.nonzero(known)
+        keys = self._block_xyz[slot].astype(np.int64) * 8 + _LOCAL[local]
+        return keys.astype(np.uint16), vals[slot, local]
+
+    def occupied_and_free(self) -> tuple[NDArray[np.uint16], NDArray[np.bool_]]:
+        """Keys of every known voxel and whether it is occupied (the maximum-likelihood map)."""
+        keys, lo = self.voxels()
+        return keys, self.is_occupied(lo)
+
+    def at_depth(self, depth: int) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
+        """Nodes at ``depth`` (0..16) that hold a known voxel: their min-corner voxel keys and
+        value, the maximum log-odds below them (OctoMap's inner-node value)."""
+        if not 0 <= depth <= TREE_DEPTH:
+            raise ValueError(f"depth must be in 0..16, got {depth}")
+        keys, lo = self.voxels()
+        shift = TREE_DEPTH - depth
+        node = keys.astype(np.int64) >> shift
+        packed = (node[:, 0] << 32) | (node[:, 1] << 16) | node[:, 2]
+        order = np.argsort(packed, kind="stable")
+        packed, lo = packed[order], lo[order]
+        starts = np.flatnonzero(np.r_[True, packed[1:] != packed[:-1]])
+        value = np.maximum.reduceat(lo, starts) if len(lo) else lo
+        u = packed[starts]
+        corner = np.stack([(u >> 32) & 0xFFFF, (u >> 16) & 0xFFFF, u & 0xFFFF], axis=1) << shift
+        return corner.astype(np.uint16), value.astype(np.float32)
+
+    def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """Metric bounding box (min corner, max corner) of the known voxels, or None if empty."""
+        keys, _ = self.voxels()
+        if len(keys) == 0:
+            return None
+        lo = (keys.min(axis=0).astype(np.float64) - 32768) * self.resolution
+        hi = (keys.max(axis=0).astype(np.float64) - 32768 + 1) * self.resolution
+        return lo, hi
+
+    def memory_bytes(self) -> int:
+        """Bytes held by the storage arrays (allocated capacity)."""
+        arrays = (
+            self._values,
+            self._bits,
+            self._block_xyz,
+            self._stamp,
+            self._table_keys,
+            self._table_slots,
+            self._touched,
+        )
+        return sum(a.nbytes for a in arrays)
+
+    # --- bulk construction ----------------------------------------------------------------
+
+    def set_voxels(self, keys: NDArray[np.integer], logodds: NDArray[np.floating]) -> None:
+        """Write log-odds at voxel keys (e.g. leaves read from a .bt file), replacing values."""
+        k = np.ascontiguousarray(np.atleast_2d(keys), dtype=np.int64)
+        v = np.ascontiguousarray(logodds, dtype=np.float32).reshape(-1)
+        if k.shape != (len(v), 3):
+            raise ValueError("keys must be (N, 3) and logodds (N,)")
+        while len(self._bits) < self.n_blocks + len(k):
+            self._grow(K.NEED_BLOCKS)
+        if len(self._table_keys) < 2 * len(self._bits):
+            self._grow(K.NEED_TABLE)
+        K.set_values(
+            k, v, self._values, self._block_xyz, self._table_keys, self._table_slots, self._counts
+        )
