@@ -183,6 +183,56 @@ def build_parser() -> argparse.ArgumentParser:
         dest="image.origin",
         help="pose x y [yaw] of the lower-left corner (default: centred on 0, 0)",
     )
+    t = sub.add_parser(
+        "octree2world",
+        help="OctoMap .bt file or OctoMap text scan file -> Gazebo world folder",
+        description="Project an OctoMap octree (a .bt file, or a scan file ray-cast into a new "
+        "octree with OctoMap's model) to a 2D occupancy grid as octomap_server does (or a 2.5D "
+        "height grid) and write the same world folder as map2world. A scan input also writes "
+        "the octree as octree.bt.",
+        epilog="examples:\n"
+        "  scan2terrain octree2world fixtures/octomap/geb079.bt -o geb079 --z-min 0.1 --z-max 1.8\n"
+        "  scan2terrain octree2world scan.dat.bz2 -o fr079 --resolution 0.1 --grid height\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    t.add_argument("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
+    _common(t)
+    t.add_argument(
+        "--resolution",
+        type=float,
+        dest="octree.resolution",
+        help="voxel side in metres for scan input (default 0.05)",
+    )
+    t.add_argument(
+        "--max-range",
+        type=float,
+        dest="octree.max_range",
+        help="metres; longer beams are cut there and only clear (default: unlimited)",
+    )
+    t.add_argument(
+        "--z-min",
+        type=float,
+        dest="octree.z_min",
+        help="lowest voxel centre (metres) that counts for the 2D grid",
+    )
+    t.add_argument(
+        "--z-max",
+        type=float,
+        dest="octree.z_max",
+        help="highest voxel centre (metres) that counts for the 2D grid",
+    )
+    t.add_argument(
+        "--grid",
+        choices=("occupancy", "height"),
+        dest="octree.grid",
+        help="occupancy (octomap_server's projection, default) or height (2.5D)",
+    )
+    t.add_argument(
+        "--unknown",
+        choices=("free", "obstacle", "height"),
+        dest="terrain.unknown",
+        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
+    )
     return parser
 
 
@@ -225,6 +275,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, overrides)
     if args.command == "map2world":
         result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
+    elif args.command == "octree2world":
+        result = pipeline.octree2world(args.tree, args.out, cfg, overwrite=args.overwrite)
     else:
         result = pipeline.image2world(args.image, args.out, cfg, overwrite=args.overwrite)
     if not args.quiet:

@@ -94,6 +94,33 @@ class ImageConfig:
 
 
 @dataclass
+class OctreeConfig:
+    """The voxel octree (octree2world): OctoMap's defaults."""
+
+    #: Voxel side in metres, for scan inputs (a .bt file carries its own).
+    resolution: float = 0.05
+    #: Beams longer than this (metres) are cut there and only clear; < 0 = unlimited (OctoMap).
+    max_range: float = -1.0
+    hit: float = 0.7
+    miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    occupancy: float = 0.5
+    #: Voxels whose centre z is in [z_min, z_max] (metres) make the 2D grid; None = unbounded,
+    #: as octomap_server's occupancy_min_z / occupancy_max_z.
+    z_min: float | None = None
+    z_max: float | None = None
+    #: occupancy (octomap_server's projection) | height (2.5D: a column statistic of occupied z).
+    grid: str = "occupancy"
+    #: max | min | mean of the occupied voxel centres of a column (grid: height).
+    height_stat: str = "max"
+    #: none | nearest | idw: how empty columns of a height grid are filled.
+    fill: str = "nearest"
+    #: Empty columns farther than this (metres) from a known one stay empty (nearest fill).
+    fill_max_distance: float = 1.0
+
+
+@dataclass
 class Config:
     canvas: CanvasConfig = field(default_factory=CanvasConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -101,6 +128,7 @@ class Config:
     world: WorldConfig = field(default_factory=WorldConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     image: ImageConfig = field(default_factory=ImageConfig)
+    octree: OctreeConfig = field(default_factory=OctreeConfig)
     #: Refuse images with more pixels than this (decompression bombs).
     max_pixels: int = 1 << 28
 
@@ -163,6 +191,27 @@ class Config:
             c.canvas.height is None or c.canvas.height > 0, "canvas.height", c.canvas.height, "> 0"
         )
         _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
+        o = c.octree
+        _check(o.resolution > 0, "octree.resolution", o.resolution, "> 0 metres")
+        for name in ("hit", "miss", "clamp_min", "clamp_max", "occupancy"):
+            _check(0 < getattr(o, name) < 1, f"octree.{name}", getattr(o, name), "in (0, 1)")
+        _check(o.miss < 0.5 < o.hit, "octree.hit/miss", (o.hit, o.miss), "miss < 0.5 < hit")
+        _check(o.clamp_min < o.clamp_max, "octree.clamp_min", o.clamp_min, "< clamp_max")
+        _check(
+            o.z_min is None or o.z_max is None or o.z_min <= o.z_max,
+            "octree.z_min",
+            o.z_min,
+            "<= z_max",
+        )
+        _check(o.grid in ("occupancy", "height"), "octree.grid", o.grid, "occupancy or height")
+        _check(
+            o.height_stat in ("max", "min", "mean"),
+            "octree.height_stat",
+            o.height_stat,
+            "max, min or mean",
+        )
+        _check(o.fill in ("none", "nearest", "idw"), "octree.fill", o.fill, "none, nearest or idw")
+        _check(o.fill_max_distance > 0, "octree.fill_max_distance", o.fill_max_distance, "> 0")
         return self
 
     def to_dict(self) -> dict[str, Any]:

@@ -8,15 +8,17 @@ image2world: read image -> luminance -> invert/canvas -> filter -> align -> heig
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
+from scan2terrain.errors import InputError
 from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap, make_heightmap
@@ -32,6 +34,9 @@ from scan2terrain.filters import (
 from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
 from scan2terrain.grids import axis_align, canvas, invert_occupancy, to_trinary, upsample
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+
+if TYPE_CHECKING:
+    from scan2terrain.octree.tree import VoxelOctree
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
@@ -146,8 +151,22 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     _refuse_existing(out, overwrite)
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    if cfg.canvas.invert:
-        trinary = invert_occupancy(trinary)
+    return occupancy_world(grid.with_data(trinary), Path(yaml_path), out, cfg, overwrite=overwrite)
+
+
+def occupancy_world(
+    grid: OccupancyGrid,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool,
+    extra: dict[str, bytes] | None = None,
+) -> Result:
+    """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
+    (unknown policy) -> heightmap -> worlds, map_server map, preview. ``extra`` files (relative
+    name -> bytes) are written into the same folder."""
+    trinary = invert_occupancy(grid.data) if cfg.canvas.invert else grid.data
     trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
 
@@ -163,18 +182,124 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
         bit_depth=t.bit_depth,
         pad_height=pad,
     )
-    levels = (0.0, pad, t.height)
-    map_out = OccupancyGrid(aligned, grid.resolution, world_origin)
     return _write(
         out,
         cfg,
         overwrite=overwrite,
-        source=Path(yaml_path),
+        source=source,
         hm=hm,
-        levels=levels,
-        map_out=map_out,
+        levels=(0.0, pad, t.height),
+        map_out=OccupancyGrid(aligned, grid.resolution, world_origin),
         preview=preview_png(trinary, filtered, occupancy=True),
+        extra=extra,
     )
+
+
+def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
+    """An OctoMap ``.bt`` file, or an OctoMap text scan file (ray-cast into a new octree), to a
+    world folder through octomap_server's 2D projection or a 2.5D height grid."""
+    from scan2terrain.grids import projection
+    from scan2terrain.octree.bt import bt_bytes, read_bt
+    from scan2terrain.readers.octomap_scan import is_scan_file
+
+    _refuse_existing(out, overwrite)
+    source = Path(source)
+    extra: dict[str, bytes] = {}
+    if is_scan_file(source):
+        tree = build_octree(source, cfg)
+        keys, occupied = tree.occupied_and_free()
+        resolution = tree.resolution
+        extra["octree.bt"] = bt_bytes(resolution=resolution, keys=keys, occupied=occupied)
+    else:
+        bt = read_bt(source)
+        keys, occupied = bt.expand()
+        resolution = bt.resolution
+    if len(keys) == 0:
+        raise InputError(source, "the octree holds no known voxel")
+    o = cfg.octree
+    z_min = -math.inf if o.z_min is None else o.z_min
+    z_max = math.inf if o.z_max is None else o.z_max
+    if o.grid == "occupancy":
+        grid = projection.project_occupancy(keys, occupied, resolution, z_min=z_min, z_max=z_max)
+        return occupancy_world(grid, source, out, cfg, overwrite=overwrite, extra=extra)
+    stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max)
+    if not stats.known.any():
+        raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
+    heights = stats.to_height_grid(o.height_stat)
+    if o.fill == "nearest":
+        heights = projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
+    elif o.fill == "idw":
+        heights = projection.fill_idw(heights)
+    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra)
+
+
+def build_octree(source: Path, cfg: Config) -> VoxelOctree:
+    """Ray-cast every scan of an OctoMap text scan file into a new octree."""
+    from scan2terrain.octree.tree import SensorModel, VoxelOctree
+    from scan2terrain.readers.octomap_scan import read_scans
+
+    o = cfg.octree
+    tree = VoxelOctree(
+        o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
+    )
+    for scan in read_scans(source):
+        try:
+            tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
+        except InputError as exc:
+            raise InputError(source, exc.problem) from None
+    return tree
+
+
+def height_world(
+    grid: HeightGrid,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool,
+    extra: dict[str, bytes] | None = None,
+) -> Result:
+    """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known
+    height. Filters: the plain median (``filter.size``) when filtering is on, as heights are
+    not labels."""
+    heights = grid.heights
+    known = grid.known
+    floor = float(heights[known].min()) if known.any() else 0.0
+    filled = np.where(known, heights, floor).astype(np.float32)
+    f = cfg.filter
+    before = filled
+    if f.enabled and f.kind != "none":
+        filled = median_filter(filled, size=f.size)
+    aligned, world_origin = axis_align(filled, grid.origin, grid.resolution, fill=floor)
+    t = cfg.terrain
+    fine, fine_res = upsample(aligned, grid.resolution, t.upsample)
+    hm = make_heightmap(
+        HeightGrid(
+            fine.astype(np.float32), np.ones(fine.shape, dtype=bool), fine_res, world_origin
+        ),
+        bit_depth=t.bit_depth,
+        pad_height=floor,
+    )
+    top = float(fine.max(initial=floor))
+    return _write(
+        out,
+        cfg,
+        overwrite=overwrite,
+        source=source,
+        hm=hm,
+        levels=(floor, (floor + top) / 2, top),
+        map_out=None,
+        preview=preview_png(
+            _grey8(before, floor, top), _grey8(filled, floor, top), occupancy=False
+        ),
+        extra=extra,
+    )
+
+
+def _grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint8]:
+    span = hi - lo if hi > lo else 1.0
+    grey: NDArray[np.uint8] = np.clip(np.rint((heights - lo) / span * 255), 0, 255).astype(np.uint8)
+    return grey
 
 
 def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
@@ -251,6 +376,7 @@ def _write(
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: bytes,
+    extra: dict[str, bytes] | None = None,
 ) -> Result:
     import yaml
 
@@ -293,6 +419,8 @@ def _write(
             result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
         if cfg.output.preview:
             result.preview = od.write("preview.png", preview)
+        for name, data in (extra or {}).items():
+            od.write(name, data)
         header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
         body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
         result.config = od.write(CONFIG_FILE, (header + body).encode())

@@ -342,7 +342,12 @@ def _parse_records(
 def write_bt(
     path: Path, *, resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]
 ) -> None:
-    """Write voxels as the ``.bt`` file OctoMap's ``OcTree::writeBinary`` writes for them.
+    """Write :func:`bt_bytes` to ``path`` (a temporary name in the same folder, then renamed)."""
+    _atomic_write(Path(path), bt_bytes(resolution=resolution, keys=keys, occupied=occupied))
+
+
+def bt_bytes(*, resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> bytes:
+    """Voxels as the ``.bt`` file OctoMap's ``OcTree::writeBinary`` writes for them.
 
     ``writeBinary`` first sets every node to its maximum-likelihood state and prunes: eight
     sibling leaves that all exist and share a state become one leaf, level by level up to (not
@@ -362,8 +367,6 @@ def write_bt(
 
     Parameters
     ----------
-    path : Path
-        The file to write; written under a temporary name in the same folder, then renamed.
     resolution : float
         Voxel side in metres, > 0.
     keys : uint16 array (M, 3)
@@ -392,7 +395,7 @@ def write_bt(
         + _COMMENT
         + f"id OcTree\nsize {size}\nres {res_text}\ndata\n".encode()
     )
-    _atomic_write(Path(path), header + data)
+    return header + data
 
 
 def _encode(keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> tuple[int, bytes]:

@@ -1,0 +1,166 @@
+"""octree2world: OctoMap .bt files and scan files to Gazebo worlds, checked by Gazebo's code."""
+
+from __future__ import annotations
+
+import bz2
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scan2terrain import pipeline
+from scan2terrain.cli import main
+from scan2terrain.config import load_config
+from scan2terrain.errors import InputError
+from scan2terrain.grids.projection import project_occupancy
+from scan2terrain.octree.bt import read_bt
+from scan2terrain.readers.octomap_scan import read_scans, rotation
+from tests.conftest import FIXTURES
+from tests.gazebo_harness import probe_world, terrain_height
+from tests.test_gazebo_worlds import H, check_world
+
+GEB079 = FIXTURES / "octomap/geb079.bt"
+FR079 = FIXTURES / "octomap/scan.dat.bz2"
+
+
+def test_bt_to_world_lands_in_the_map_frame(tmp_path: Path) -> None:
+    cfg = load_config(
+        None,
+        {"terrain.height": H, "filter.enabled": False, "octree.z_min": 0.1, "octree.z_max": 1.8},
+    )
+    result = pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+    keys, occupied = read_bt(GEB079).expand()
+    grid = project_occupancy(keys, occupied, 0.08, z_min=0.1, z_max=1.8)
+    assert (grid.data == 100).sum() > 1000 and (grid.data == 0).sum() > 1000
+    checked = check_world(result, grid, tmp_path)
+    assert checked["gz"] > 5000
+
+
+def test_scan_file_is_ray_cast_and_its_octree_written(tmp_path: Path) -> None:
+    cfg = load_config(None, {"octree.resolution": 0.2, "world.simulator": "gz"})
+    result = pipeline.octree2world(FR079, tmp_path / "w", cfg)
+    tree = pipeline.build_octree(FR079, cfg)
+    keys, occupied = tree.occupied_and_free()
+    written = read_bt(result.out / "octree.bt")
+    assert written.resolution == 0.2
+    wk, wo = written.expand()
+    order_a = np.lexsort(keys.T[::-1])
+    order_b = np.lexsort(wk.T[::-1])
+    np.testing.assert_array_equal(keys[order_a], wk[order_b])
+    np.testing.assert_array_equal(occupied[order_a], wo[order_b])
+
+
+def test_height_grid_world(tmp_path: Path) -> None:
+    cfg = load_config(
+        None,
+        {
+            "octree.grid": "height",
+            "octree.fill": "none",
+            "filter.enabled": False,
+            "world.simulator": "gz",
+            "octree.z_max": 2.0,
+        },
+    )
+    result = pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+    from scan2terrain.grids.projection import column_stats
+
+    keys, occupied = read_bt(GEB079).expand()
+    stats = column_stats(keys, occupied, 0.08, z_max=2.0)
+    (w,) = result.worlds
+    _, probes = probe_world(w.world, [w.models], tmp_path / "probe")
+    (col,) = [p for p in probes if p.kind == "collision"]
+    rows, cols = np.nonzero(stats.known)
+    x, y = stats.origin.transform((cols + 0.5) * 0.08, (rows + 0.5) * 0.08)
+    got = terrain_height(col, x, y, "gz")
+    want = stats.max_z[rows, cols]
+    # Only cells whose neighbours share the height: Gazebo interpolates between vertices, and
+    # vertices sit on cell centres, so at a centre the height is exact.
+    span = float(np.nanmax(stats.max_z) - np.nanmin(stats.max_z))
+    assert np.abs(got - want).max() <= 0.01 * span
+
+
+def test_scan_reader_applies_node_poses(tmp_path: Path) -> None:
+    text = "NODE 1 2 0.5 0 0 1.5707963267948966\n1 0 0\n0 2 0\nNODE 0 0 0 0 0 0\n3 3 3\n"
+    (tmp_path / "s.dat").write_text(text)
+    scans = list(read_scans(tmp_path / "s.dat"))
+    assert len(scans) == 2
+    np.testing.assert_allclose(scans[0].origin, [1, 2, 0.5])
+    np.testing.assert_allclose(scans[0].points, [[1, 3, 0.5], [-1, 2, 0.5]], atol=1e-12)
+    np.testing.assert_allclose(scans[1].points, [[3, 3, 3]])
+    r = rotation(0.1, -0.2, 0.3)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+
+
+def test_fr079_scan_file_reads_as_one_scan_at_the_origin() -> None:
+    (scan,) = list(read_scans(FR079))
+    assert scan.points.shape == (88206, 3) and not scan.origin.any()
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("empty.dat", b"", "no points"),
+        ("bad.dat", b"1 2 3\n4 five 6\n", "line 2: expected 'x y z'"),
+        ("badnode.dat", b"NODE 1 2\n1 2 3\n", "line 1: expected 'NODE x y z roll pitch yaw'"),
+        ("notbz.dat.bz2", b"not bzip2", "cannot read as an OctoMap text scan file"),
+        ("trunc.bt", b"", "trunc.bt: "),
+        ("text.bt", b"hello\nworld\n", "text.bt: "),
+    ],
+)
+def test_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, content: bytes, message: str
+) -> None:
+    src = tmp_path / name
+    src.write_bytes(content)
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    code = main(["octree2world", str(src), "-o", str(outs / "w")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert message in err and err.count("\n") == 1
+    assert list(outs.iterdir()) == []
+
+
+def test_truncated_real_bt_and_far_origin(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = GEB079.read_bytes()
+    (tmp_path / "cut.bt").write_bytes(data[: len(data) // 2])
+    assert main(["octree2world", str(tmp_path / "cut.bt"), "-o", str(tmp_path / "w")]) == 2
+    assert "cut.bt" in capsys.readouterr().err and not (tmp_path / "w").exists()
+    # A scan whose sensor pose is outside the octree's key range (+-3276.8 m at 0.1 m).
+    far = "NODE 5000 0 0 0 0 0\n1 0 0\n"
+    (tmp_path / "far.dat").write_text(far)
+    assert (
+        main(
+            [
+                "octree2world",
+                str(tmp_path / "far.dat"),
+                "-o",
+                str(tmp_path / "w"),
+                "--resolution",
+                "0.1",
+            ]
+        )
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "far.dat" in err and "outside the octree's key range" in err
+
+
+def test_height_mode_with_nothing_in_band(tmp_path: Path) -> None:
+    cfg = load_config(None, {"octree.grid": "height", "octree.z_min": 100.0, "octree.z_max": 200.0})
+    with pytest.raises(InputError, match="no occupied voxel in the z band"):
+        pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+    assert not (tmp_path / "w").exists()
+
+
+def test_compressed_scan_file_round_trip(tmp_path: Path) -> None:
+    pts = np.random.default_rng(0).uniform(-2, 2, (50, 3))
+    (tmp_path / "s.dat.bz2").write_bytes(
+        bz2.compress("\n".join(" ".join(repr(float(v)) for v in p) for p in pts).encode())
+    )
+    (scan,) = list(read_scans(tmp_path / "s.dat.bz2"))
+    np.testing.assert_array_equal(scan.points, pts)
+    assert math.isclose(float(np.abs(scan.origin).sum()), 0.0)
