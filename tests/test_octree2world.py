@@ -51,6 +51,17 @@ def test_scan_file_is_ray_cast_and_its_octree_written(tmp_path: Path) -> None:
     np.testing.assert_array_equal(occupied[order_a], wo[order_b])
 
 
+def test_occupied_voxel_points_export(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "w"
+    assert main(["octree2world", str(GEB079), "-o", str(out), "--points", "ply", "-q"]) == 0
+    data = (out / "occupied_voxels.ply").read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    pts = np.frombuffer(body, dtype="<f8").reshape(-1, 3)
+    keys, occupied = read_bt(GEB079).expand()
+    assert len(pts) == int(occupied.sum())
+    np.testing.assert_allclose(pts.min(axis=0), (keys[occupied].min(axis=0) - 32768 + 0.5) * 0.08)
+
+
 def test_height_grid_world(tmp_path: Path) -> None:
     cfg = load_config(
         None,

@@ -118,6 +118,8 @@ class OctreeConfig:
     fill: str = "nearest"
     #: Empty columns farther than this (metres) from a known one stay empty (nearest fill).
     fill_max_distance: float = 1.0
+    #: none | ply | pcd: also write the occupied voxel centres as OUT/occupied_voxels.<ext>.
+    points: str = "none"
 
 
 @dataclass
@@ -212,6 +214,7 @@ class Config:
         )
         _check(o.fill in ("none", "nearest", "idw"), "octree.fill", o.fill, "none, nearest or idw")
         _check(o.fill_max_distance > 0, "octree.fill_max_distance", o.fill_max_distance, "> 0")
+        _check(o.points in ("none", "ply", "pcd"), "octree.points", o.points, "none, ply or pcd")
         return self
 
     def to_dict(self) -> dict[str, Any]:

@@ -13,31 +13,32 @@ nothing but the points (same points, same bytes).
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.fileio import atomic_write
+
 FORMATS = (".ply", ".pcd")
 
 
 def write_points(path: Path, points: NDArray[np.float64]) -> None:
-    """Write ``points`` float64 (N, 3), metres, as PLY or PCD, chosen by the file extension.
+    """Write :func:`points_bytes` for ``path``'s extension to ``path``, atomically."""
+    atomic_write(Path(path), points_bytes(points, Path(path).suffix))
+
+
+def points_bytes(points: NDArray[np.float64], suffix: str) -> bytes:
+    """``points`` float64 (N, 3), metres, as a PLY or PCD file (``suffix`` ".ply" or ".pcd").
 
     Raises
     ------
     ValueError
         For another extension, or ``points`` that are not finite (N, 3) numbers.
     """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(
-            f"{path}: unsupported point cloud extension {path.suffix!r} (use .ply or .pcd)"
-        )
+    if suffix.lower() not in FORMATS:
+        raise ValueError(f"unsupported point cloud extension {suffix!r} (use .ply or .pcd)")
+    suffix = suffix.lower()
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
         raise ValueError(f"points must be a (N, 3) number array, got {points.dtype} {points.shape}")
@@ -58,19 +59,4 @@ def write_points(path: Path, points: NDArray[np.float64]) -> None:
             f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
         )
         body = np.ascontiguousarray(points, dtype="<f4").tobytes()
-    _atomic_write(path, header.encode("ascii") + body)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    # The same few lines as in octree/bt.py: exporters do not reach into the octree stage's
-    # private helpers, and OutputDir (whole folders) does not fit a single file.
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as out:
-            out.write(data)
-        Path(tmp).chmod(0o644)  # mkstemp makes it 0600
-        Path(tmp).replace(path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            Path(tmp).unlink()
-        raise
+    return header.encode("ascii") + body

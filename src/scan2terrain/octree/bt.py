@@ -28,11 +28,8 @@ Both directions are vectorised per tree level (at most 16 numpy passes), never p
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.fileio import atomic_write
 
 #: First line of every ``.bt`` file (``AbstractOccupancyOcTree::binaryFileHeader``).
 BINARY_HEADER = b"# Octomap OcTree binary file"
@@ -343,7 +341,7 @@ def write_bt(
     path: Path, *, resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]
 ) -> None:
     """Write :func:`bt_bytes` to ``path`` (a temporary name in the same folder, then renamed)."""
-    _atomic_write(Path(path), bt_bytes(resolution=resolution, keys=keys, occupied=occupied))
+    atomic_write(Path(path), bt_bytes(resolution=resolution, keys=keys, occupied=occupied))
 
 
 def bt_bytes(*, resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> bytes:
@@ -472,17 +470,3 @@ def _morton(keys: NDArray[np.uint16]) -> NDArray[np.uint64]:
         spread = _SPREAD8[k & 0xFF] | (_SPREAD8[k >> 8] << np.uint64(24))
         code |= spread << np.uint64(axis)
     return code
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as out:
-            out.write(data)
-        Path(tmp).chmod(0o644)  # mkstemp makes it 0600
-        Path(tmp).replace(path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            Path(tmp).unlink()
-        raise
