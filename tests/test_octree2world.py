@@ -59,7 +59,8 @@ def test_occupied_voxel_points_export(tmp_path: Path, capsys: pytest.CaptureFixt
     pts = np.frombuffer(body, dtype="<f8").reshape(-1, 3)
     keys, occupied = read_bt(GEB079).expand()
     assert len(pts) == int(occupied.sum())
-    np.testing.assert_allclose(pts.min(axis=0), (keys[occupied].min(axis=0) - 32768 + 0.5) * 0.08)
+    lowest = keys[occupied].min(axis=0).astype(np.int64)
+    np.testing.assert_allclose(pts.min(axis=0), (lowest - 32768 + 0.5) * 0.08)
 
 
 def test_height_grid_world(tmp_path: Path) -> None:

@@ -233,6 +233,12 @@ def build_parser() -> argparse.ArgumentParser:
         dest="terrain.unknown",
         help="unknown cells as floor, as walls, or at --unknown-height (default free)",
     )
+    t.add_argument(
+        "--points",
+        choices=("none", "ply", "pcd"),
+        dest="octree.points",
+        help="also write the occupied voxel centres as occupied_voxels.ply / .pcd",
+    )
     return parser
 
 

@@ -122,10 +122,8 @@ class VoxelOctree:
         if o.shape != (3,) or not np.isfinite(o).all():
             raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
         o32 = o.astype(np.float32)
-        half = 32768 * self.resolution
-        if (np.abs(o32.astype(np.float64) + self.resolution * 0.5) >= half).any() or not all(
-            K.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32
-        ):
+        if not all(K.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32):
+            half = 32768 * self.resolution
             raise InputError(
                 None,
                 f"sensor origin {tuple(o)} is outside the octree's key range "
