@@ -560,11 +560,32 @@ def apply_blocks(values, bits, touched, n_touched, model):
     return hits, misses
 
 
+@nb.njit(parallel=True, **_JIT)
+def point_blocks(points, resolution):
+    """Block id (-1 outside the key range) and voxel index within its block of every point,
+    computed on every core."""
+    res_factor = 1.0 / resolution
+    n = points.shape[0]
+    bk = np.empty(n, dtype=np.int64)
+    local = np.empty(n, dtype=np.int16)
+    for i in nb.prange(n):
+        kx = coord_to_key(np.float64(points[i, 0]), res_factor)
+        ky = coord_to_key(np.float64(points[i, 1]), res_factor)
+        kz = coord_to_key(np.float64(points[i, 2]), res_factor)
+        if kx < 0 or ky < 0 or kz < 0:
+            bk[i] = -1
+            local[i] = 0
+        else:
+            bk[i] = block_id(kx >> 3, ky >> 3, kz >> 3)
+            local[i] = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
+    return bk, local
+
+
 @nb.njit(**_JIT)
 def mark_points(
-    points,
+    bk,
+    local,
     start,
-    resolution,
     bits,
     block_xyz,
     stamp,
@@ -575,31 +596,41 @@ def mark_points(
     stats,
 ):
     """End points only: mark every point's voxel as a hit (no ray casting); resumable.
-    stats += [points inserted, 0, points outside the key range]."""
-    res_factor = 1.0 / resolution
-    ck, cs = np.int64(-1), np.int64(-1)
+    ``bk``/``local`` from :func:`point_blocks`. stats += [points inserted, 0, points outside
+    the key range]. The hash probe is written out: a call per point costs more than the probe."""
     scan = counts[STAMP]
-    n = points.shape[0]
+    mask = np.int64(table_keys.shape[0] - 1)
+    ck, cs = np.int64(-1), np.int64(-1)
+    n = bk.shape[0]
     for i in range(start, n):
-        status = _room(1, counts, block_xyz, touched, table_keys)
-        if status != DONE:
-            return i, status
-        kx = coord_to_key(np.float64(points[i, 0]), res_factor)
-        ky = coord_to_key(np.float64(points[i, 1]), res_factor)
-        kz = coord_to_key(np.float64(points[i, 2]), res_factor)
-        if kx < 0 or ky < 0 or kz < 0:
+        if (
+            counts[N_BLOCKS] + 1 > block_xyz.shape[0]
+            or counts[N_TOUCHED] + 1 > touched.shape[0]
+            or 2 * (counts[N_BLOCKS] + 1) > table_keys.shape[0]
+        ):
+            return i, _room(1, counts, block_xyz, touched, table_keys)
+        k = bk[i]
+        if k < 0:
             stats[2] += 1
             continue
-        bk = block_id(kx >> 3, ky >> 3, kz >> 3)
-        if bk != ck:
-            ck = bk
-            cs = table_find(table_keys, table_slots, bk)
+        if k != ck:
+            ck = k
+            h = _hash(k, mask)
+            cs = -1
+            while True:
+                tk = table_keys[h]
+                if tk == k:
+                    cs = table_slots[h]
+                    break
+                if tk == EMPTY:
+                    break
+                h = (h + 1) & mask
             if cs < 0 or stamp[cs] != scan:
                 cs = _slot(
-                    bk,
-                    kx >> 3,
-                    ky >> 3,
-                    kz >> 3,
+                    k,
+                    k >> 26,
+                    (k >> 13) & 8191,
+                    k & 8191,
                     block_xyz,
                     stamp,
                     table_keys,
@@ -607,8 +638,8 @@ def mark_points(
                     counts,
                     touched,
                 )
-        local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
-        bits[cs, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+        loc = local[i]
+        bits[cs, loc >> 6] |= np.uint64(1) << np.uint64(loc & 63)
         stats[0] += 1
     return n, DONE
 

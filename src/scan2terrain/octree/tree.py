@@ -165,7 +165,8 @@ class VoxelOctree:
         pts, dropped = self._points(points)
         stats = np.zeros(3, dtype=np.int64)
         self._next_scan()
-        self._until_done(lambda i: K.mark_points(pts, i, self.resolution, *self._storage(), stats))
+        bk, local = K.point_blocks(pts, self.resolution)
+        self._until_done(lambda i: K.mark_points(bk, local, i, *self._storage(), stats))
         hits, misses = self._apply()
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
 
@@ -202,33 +203,33 @@ class VoxelOctree:
         return int(hits), int(misses)
 
     def _points(self, points: NDArray[np.floating]) -> tuple[NDArray[np.float32], int]:
+        """Points as C-contiguous float32 (copied only if needed), non-finite rows dropped."""
         arr = np.asarray(points)
         if arr.ndim != 2 or arr.shape[1] != 3:
             raise InputError(None, f"points must be an (N, 3) array, got shape {arr.shape}")
-        pts = arr.astype(np.float32)
+        pts = np.ascontiguousarray(arr, dtype=np.float32)
+        if np.isfinite(pts).all():  # one cheap pass for the usual case
+            return pts, 0
         finite = np.isfinite(pts).all(axis=1)
-        dropped = int(len(pts) - finite.sum())
-        if dropped:
-            pts = pts[finite]
-        return np.ascontiguousarray(pts), dropped
+        return np.ascontiguousarray(pts[finite]), int(len(pts) - finite.sum())
 
     def _grow(self, status: int) -> None:
         """Make room for the insertion kernels: more blocks, a longer list of blocks touched
         by the scan, or a larger hash table (kept at most half full)."""
         n_blocks = int(self._counts[K.N_BLOCKS])
         if status == K.NEED_BLOCKS:
-            new = max(2 * len(self._bits), n_blocks + 4096)
-
-            def grown(a: NDArray[Any], fill: float) -> NDArray[Any]:
-                out = np.empty((new, *a.shape[1:]), dtype=a.dtype)
-                out[:n_blocks] = a[:n_blocks]
-                out[n_blocks:] = fill
-                return out
-
-            self._values = grown(self._values, np.nan)
-            self._bits = grown(self._bits, 0)
-            self._block_xyz = grown(self._block_xyz, 0)
-            self._stamp = grown(self._stamp, -1)
+            old = len(self._bits)
+            new = max(2 * old, n_blocks + 4096)
+            # resize() reallocates in place: large arrays move by remapping pages, not copying.
+            for name, fill in (
+                ("_values", np.nan),
+                ("_bits", 0),
+                ("_block_xyz", 0),
+                ("_stamp", -1),
+            ):
+                a = getattr(self, name)
+                a.resize((new, *a.shape[1:]), refcheck=False)
+                a[old:] = fill
         elif status == K.NEED_TOUCHED:
             n = int(self._counts[K.N_TOUCHED])
             touched = np.empty(2 * len(self._touched), dtype=np.int64)
