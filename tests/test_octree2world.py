@@ -55,7 +55,7 @@ def test_occupied_voxel_points_export(tmp_path: Path, capsys: pytest.CaptureFixt
     out = tmp_path / "w"
     assert main(["octree2world", str(GEB079), "-o", str(out), "--points", "ply", "-q"]) == 0
     data = (out / "occupied_voxels.ply").read_bytes()
-    header, body = data.split(b"end_header\n", 1)
+    _, body = data.split(b"end_header\n", 1)
     pts = np.frombuffer(body, dtype="<f8").reshape(-1, 3)
     keys, occupied = read_bt(GEB079).expand()
     assert len(pts) == int(occupied.sum())

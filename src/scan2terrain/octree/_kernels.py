@@ -5,10 +5,10 @@ hash of block coordinates. Per block: ``values`` float32 log-odds (NaN = unknown
 uint64 words, one bit per voxel: this scan's hits (words 0-7) and, per thread, its misses (words
 8 + 8t .. 15 + 8t), so the marks of a whole scan stay in cache and threads never share a word.
 
-A scan (1) marks its hits and allocates the blocks its rays pass through, serially
-(``prepare``); (2) casts the rays on every core, setting miss bits (``cast_parallel``, each thread
-in its own words; the rare ray that meets an unprepared block is redone serially by
-``cast_serial``); (3) applies one log-odds update per marked voxel of the blocks it touched, hits
+A scan (1) finds the blocks its rays pass through (``flag_blocks``, every core), allocates
+them and marks its hits (``alloc_flagged``, ``mark_hits``, serial); (2) casts the rays on every
+core, setting miss bits (``cast_parallel``, each thread in its own words; the rare ray that meets
+an unprepared block is redone serially by ``cast_serial``); (3) applies one log-odds update per marked voxel of the blocks it touched, hits
 winning, block-parallel (``apply_blocks``). So each voxel is updated once per scan and occupied
 wins, as in OctoMap's insertPointCloud. ``touched`` lists the blocks the scan touched; ``stamp``
 holds, per block, the last scan that touched it.
@@ -211,77 +211,31 @@ def block_bounds(origin, ends, resolution):
     return out
 
 
-@nb.njit(**_JIT)
-def prepare(
-    origin,
-    ends,
-    kind,
-    start,
-    resolution,
-    dense,
-    box,
-    bits,
-    block_xyz,
-    stamp,
-    table_keys,
-    table_slots,
-    counts,
-    touched,
-):
-    """Serial first pass of a scan: mark the hits, and allocate (and record as touched) every
-    block each ray's segment passes through, found by a DDA over blocks (8 voxels a step).
-
-    Each block's slot is entered in ``dense``, an int32 index over the scan's bounding box of
-    blocks (``box`` = min block x, y, z and extents; -1 = not prepared). The parallel voxel pass
-    then finds its blocks there without allocating; a voxel that the float32 DDA puts in a block
-    this pass missed (a segment grazing a block corner) sends its ray to the serial fallback.
-    Resumable: returns (next index, DONE or NEED_*).
-    """
+@nb.njit(parallel=True, **_JIT)
+def flag_blocks(origin, ends, kind, resolution, dense, box):
+    """First pass of a scan, on every core: flag (-2) in ``dense`` every block of the scan's box
+    that a ray's segment passes through or that holds a hit, by a DDA over blocks (8 voxels a
+    step). ``dense`` is an int32 index over the scan's bounding box of blocks (``box`` = min
+    block x, y, z and extents): -1 unused, -2 needed, >= 0 the block's slot. Threads only ever
+    write -2 over -1, so they agree."""
     res_factor = 1.0 / resolution
     ox, oy, oz = origin[0], origin[1], origin[2]
     uo = (np.float64(ox) * res_factor + TREE_MAX_VAL) / 8.0
     vo = (np.float64(oy) * res_factor + TREE_MAX_VAL) / 8.0
     wo = (np.float64(oz) * res_factor + TREE_MAX_VAL) / 8.0
     x0, y0, z0, nx, ny, nz = box[0], box[1], box[2], box[3], box[4], box[5]
-    n = ends.shape[0]
-    for i in range(start, n):
+    for i in nb.prange(ends.shape[0]):
+        if not kind[i]:
+            continue
         ue = (np.float64(ends[i, 0]) * res_factor + TREE_MAX_VAL) / 8.0
         ve = (np.float64(ends[i, 1]) * res_factor + TREE_MAX_VAL) / 8.0
         we = (np.float64(ends[i, 2]) * res_factor + TREE_MAX_VAL) / 8.0
-        bx, by, bz = math.floor(uo), math.floor(vo), math.floor(wo)
         ebx, eby, ebz = math.floor(ue), math.floor(ve), math.floor(we)
+        if not kind[i] & 2:  # a hit only: its own block
+            bx, by, bz = ebx, eby, ebz
+        else:
+            bx, by, bz = math.floor(uo), math.floor(vo), math.floor(wo)
         steps = abs(ebx - bx) + abs(eby - by) + abs(ebz - bz)
-        status = _room(steps + 2, counts, block_xyz, touched, table_keys)
-        if status != DONE:
-            return i, status
-        if kind[i] & 1:
-            kx = coord_to_key(np.float64(ends[i, 0]), res_factor)
-            ky = coord_to_key(np.float64(ends[i, 1]), res_factor)
-            kz = coord_to_key(np.float64(ends[i, 2]), res_factor)
-            hx, hy, hz = kx >> 3, ky >> 3, kz >> 3
-            ix, iy, iz = hx - x0, hy - y0, hz - z0
-            inside = 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz
-            at = (ix * ny + iy) * nz + iz
-            cs = dense[at] if inside else -1
-            if cs < 0:
-                cs = _slot(
-                    block_id(hx, hy, hz),
-                    hx,
-                    hy,
-                    hz,
-                    block_xyz,
-                    stamp,
-                    table_keys,
-                    table_slots,
-                    counts,
-                    touched,
-                )
-                if inside:
-                    dense[at] = cs
-            local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
-            bits[cs, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
-        if not kind[i] & 2:
-            continue
         du, dv, dw = ue - uo, ve - vo, we - wo
         sx, sy, sz = _sign(du), _sign(dv), _sign(dw)
         big = 1.7976931348623157e308
@@ -293,20 +247,10 @@ def prepare(
         ddz = 1.0 / abs(dw) if sz != 0 else big
         for _ in range(steps + 1):
             ix, iy, iz = bx - x0, by - y0, bz - z0
-            at = (ix * ny + iy) * nz + iz
-            if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz and dense[at] < 0:
-                dense[at] = _slot(
-                    block_id(bx, by, bz),
-                    bx,
-                    by,
-                    bz,
-                    block_xyz,
-                    stamp,
-                    table_keys,
-                    table_slots,
-                    counts,
-                    touched,
-                )
+            if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz:
+                at = (ix * ny + iy) * nz + iz
+                if dense[at] == -1:
+                    dense[at] = -2
             if bx == ebx and by == eby and bz == ebz:
                 break
             if tx < ty:
@@ -322,7 +266,89 @@ def prepare(
             else:
                 bz += sz
                 tz += ddz
-    return n, DONE
+
+
+@nb.njit(**_JIT)
+def alloc_flagged(
+    dense, box, start, bits, block_xyz, stamp, table_keys, table_slots, counts, touched
+):
+    """Serial: give every flagged block of ``dense`` its slot (allocated if new, recorded as
+    touched by this scan). Resumable: returns (next entry, DONE or NEED_*)."""
+    ny, nz = box[4], box[5]
+    for at in range(start, dense.shape[0]):
+        if dense[at] != -2:
+            continue
+        status = _room(1, counts, block_xyz, touched, table_keys)
+        if status != DONE:
+            return at, status
+        bx = box[0] + at // (ny * nz)
+        by = box[1] + (at // nz) % ny
+        bz = box[2] + at % nz
+        dense[at] = _slot(
+            block_id(bx, by, bz),
+            bx,
+            by,
+            bz,
+            block_xyz,
+            stamp,
+            table_keys,
+            table_slots,
+            counts,
+            touched,
+        )
+    return dense.shape[0], DONE
+
+
+@nb.njit(**_JIT)
+def mark_hits(
+    ends,
+    kind,
+    resolution,
+    dense,
+    box,
+    start,
+    bits,
+    block_xyz,
+    stamp,
+    table_keys,
+    table_slots,
+    counts,
+    touched,
+):
+    """Serial: set the hit bit of every end point that is a hit (its block found in ``dense``,
+    or added if outside the scan's box). Resumable: returns (next index, DONE or NEED_*)."""
+    res_factor = 1.0 / resolution
+    x0, y0, z0, nx, ny, nz = box[0], box[1], box[2], box[3], box[4], box[5]
+    for i in range(start, ends.shape[0]):
+        if not kind[i] & 1:
+            continue
+        kx = coord_to_key(np.float64(ends[i, 0]), res_factor)
+        ky = coord_to_key(np.float64(ends[i, 1]), res_factor)
+        kz = coord_to_key(np.float64(ends[i, 2]), res_factor)
+        hx, hy, hz = kx >> 3, ky >> 3, kz >> 3
+        ix, iy, iz = hx - x0, hy - y0, hz - z0
+        cs = -1
+        if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz:
+            cs = dense[(ix * ny + iy) * nz + iz]
+        if cs < 0:
+            status = _room(1, counts, block_xyz, touched, table_keys)
+            if status != DONE:
+                return i, status
+            cs = _slot(
+                block_id(hx, hy, hz),
+                hx,
+                hy,
+                hz,
+                block_xyz,
+                stamp,
+                table_keys,
+                table_slots,
+                counts,
+                touched,
+            )
+        local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
+        bits[cs, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+    return ends.shape[0], DONE
 
 
 @nb.njit(**_JIT)
@@ -380,7 +406,7 @@ def _cast(
         if bk != ck:
             ck = bk
             # This scan's blocks are found in ``dense``, an index over the scan's bounding box
-            # of blocks filled by ``prepare``: one load instead of a trip to the hash table.
+            # of blocks filled by ``alloc_flagged``: one load instead of a trip to the hash table.
             ix, iy, iz = bx - box[0], by - box[1], bz - box[2]
             cs = -1
             if 0 <= ix < box[3] and 0 <= iy < box[4] and 0 <= iz < box[5]:

@@ -133,7 +133,9 @@ class VoxelOctree:
         ends, kind, stats = K.scan_rays(pts, o32, float(max_range), res)
         self._next_scan()
         dense, box = self._scan_box(o32, ends)
-        self._until_done(lambda i: K.prepare(o32, ends, kind, i, res, dense, box, *self._storage()))
+        K.flag_blocks(o32, ends, kind, res, dense, box)
+        self._until_done(lambda i: K.alloc_flagged(dense, box, i, *self._storage()))
+        self._until_done(lambda i: K.mark_hits(ends, kind, res, dense, box, i, *self._storage()))
         planes = min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
         deferred = K.cast_parallel(o32, ends, kind, res, planes, dense, box, *self._storage())
         self._until_done(
