@@ -9,8 +9,8 @@ A scan (1) finds the blocks its rays pass through (``flag_blocks``, every core),
 them and marks its hits (``alloc_flagged``, ``mark_hits``, serial); (2) casts the rays on every
 core, setting miss bits (``cast_parallel``, each thread in its own words; the rare ray that meets
 an unprepared block is redone serially by ``cast_serial``); (3) applies one log-odds update per
-marked voxel of the blocks it touched, hits winning, block-parallel (``apply_blocks``). So each voxel is updated once per scan and occupied
-wins, as in OctoMap's insertPointCloud. ``touched`` lists the blocks the scan touched; ``stamp``
+marked voxel of the blocks it touched, hits winning, block-parallel (``apply_blocks``). So each
+voxel is updated once per scan and occupied wins, as in OctoMap's insertPointCloud. ``touched`` lists the blocks the scan touched; ``stamp``
 holds, per block, the last scan that touched it.
 
 Ray casting reproduces OctoMap's ``computeRayKeys`` and ``computeUpdate`` (OcTreeBaseImpl.hxx,
