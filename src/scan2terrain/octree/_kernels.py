@@ -5,13 +5,13 @@ hash of block coordinates. Per block: ``values`` float32 log-odds (NaN = unknown
 uint64 words, one bit per voxel: this scan's hits (words 0-7) and, per thread, its misses (words
 8 + 8t .. 15 + 8t), so the marks of a whole scan stay in cache and threads never share a word.
 
-A scan (1) finds the blocks its rays pass through (``flag_blocks``, every core), allocates
-them and marks its hits (``alloc_flagged``, ``mark_hits``, serial); (2) casts the rays on every
-core, setting miss bits (``cast_parallel``, each thread in its own words; the rare ray that meets
-an unprepared block is redone serially by ``cast_serial``); (3) applies one log-odds update per
-marked voxel of the blocks it touched, hits winning, block-parallel (``apply_blocks``). So each
-voxel is updated once per scan and occupied wins, as in OctoMap's insertPointCloud. ``touched`` lists the blocks the scan touched; ``stamp``
-holds, per block, the last scan that touched it.
+A scan (1) finds the blocks its rays pass through (``flag_blocks``, every core), allocates them and
+marks its hits (``alloc_flagged``, ``mark_hits``, serial); (2) casts the rays on every core,
+setting miss bits (``cast_parallel``, each thread in its own words; the rare ray that meets an
+unprepared block is redone serially by ``cast_serial``); (3) applies one log-odds update per marked
+voxel of the blocks it touched, hits winning, block-parallel (``apply_blocks``). So each voxel is
+updated once per scan and occupied wins, as in OctoMap's insertPointCloud. ``touched`` lists the
+blocks the scan touched; ``stamp`` holds, per block, the last scan that touched it.
 
 Ray casting reproduces OctoMap's ``computeRayKeys`` and ``computeUpdate`` (OcTreeBaseImpl.hxx,
 OccupancyOcTreeBase.hxx) operation for operation, including which quantities are float32 and which
