@@ -225,7 +225,8 @@ def numba_threads(n: int) -> Iterator[None]:
         numba.set_num_threads(old)
 
 
-STAGES = ("_points", "scan_rays", "_scan_box", "prepare", "cast_parallel", "cast_serial")
+STAGES = ("_points", "scan_rays", "_scan_box", "flag_blocks", "alloc_flagged", "mark_hits")
+STAGES += ("cast_parallel", "cast_serial")
 STAGES += ("apply_blocks", "_grow")
 
 
@@ -552,7 +553,7 @@ def run(*, quick: bool, tmp: Path) -> None:
         ]:
             acc: dict[str, float] = {}
             gc.collect()
-            with stage_timer(acc, (*STAGES, "mark_points")):
+            with stage_timer(acc, (*STAGES, "point_blocks", "mark_points")):
                 t0 = time.perf_counter()
                 build()
                 total = time.perf_counter() - t0
