@@ -357,17 +357,18 @@ def _refuse_existing(out: Path, overwrite: bool) -> None:
     OutputDir.check_target(out, overwrite)
 
 
-def model_name_for(source: Path, pixels: bytes, cfg: Config) -> str:
-    """A readable, unique, deterministic name: input stem + digest of the terrain and options.
+def model_name_for(source: Path, hm: Heightmap, cfg: Config) -> str:
+    """A readable, unique, deterministic name: input stem + digest of the terrain itself.
 
     Gazebo Classic caches terrain by model name (~/.gazebo/paging/<name>); a new terrain must never
-    reuse the name of an old one.
+    reuse the name of an old one. The digest covers what the cache holds, the pixels and their
+    scale and placement, not unrelated options, and not the PNG bytes (they depend on zlib).
     """
     if cfg.world.model_name:
         return cfg.world.model_name
     stem = re.sub(r"[^A-Za-z0-9]+", "_", source.stem).strip("_").lower() or "terrain"
-    # Digest of the pixels, not of the PNG bytes: those depend on the zlib build.
-    digest = hashlib.sha256(pixels + repr(cfg.to_dict()).encode()).hexdigest()[:8]
+    geometry = repr((hm.resolution, hm.centre, hm.z_min, hm.z_range, cfg.world.sampling))
+    digest = hashlib.sha256(hm.pixels.tobytes() + geometry.encode()).hexdigest()[:8]
     return f"{stem}_{digest}"
 
 
@@ -386,7 +387,7 @@ def _write(
     import yaml
 
     png = hm.png()
-    base_name = model_name_for(source, hm.pixels.tobytes(), cfg)
+    base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
     with atomic_output(out, overwrite=overwrite) as od:
