@@ -219,8 +219,9 @@ def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     o = cfg.octree
     if o.points != "none":
         from scan2terrain.exporters.pointcloud import points_bytes
+        from scan2terrain.octree.keys import key_to_coord
 
-        centres = (keys[occupied].astype(np.float64) - 32768 + 0.5) * resolution
+        centres = key_to_coord(keys[occupied], resolution)
         extra[f"occupied_voxels.{o.points}"] = points_bytes(centres, f".{o.points}")
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max

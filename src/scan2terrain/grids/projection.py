@@ -22,10 +22,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
-#: OctoMap's key offset: key 32768 holds coordinates [0, resolution).
-KEY_OFFSET = 32768
 _KEY_MAX = 65535
 #: Tolerance, in cells, when snapping a metric box onto voxel boundaries.
 _SNAP_TOL = 1e-6
@@ -124,7 +123,7 @@ def _columns(
 
 def _key_centres(res: float) -> NDArray[np.float64]:
     """Centre height (metres) of every possible z key, for exact table look-ups."""
-    return (np.arange(_KEY_MAX + 1, dtype=np.float64) - KEY_OFFSET + 0.5) * res
+    return key_to_coord(np.arange(_KEY_MAX + 1), res)
 
 
 def _select(cols: _Columns, res: float, z_min: float, z_max: float) -> NDArray[np.bool_]:
@@ -308,7 +307,7 @@ def column_stats(
     return ColumnStats(
         max_z=grid(centres[kmax]),
         min_z=grid(centres[kmin]),
-        mean_z=grid((kmean - KEY_OFFSET + 0.5) * res),
+        mean_z=grid(key_to_coord(kmean, res)),
         count=count.astype(np.int32).reshape(h, w),
         known=known.reshape(h, w),
         resolution=res,

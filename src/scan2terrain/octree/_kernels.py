@@ -671,7 +671,7 @@ def mark_points(
 
 
 @nb.njit(**_JIT)
-def lookup(keys, resolution, values, table_keys, table_slots):
+def lookup(keys, values, table_keys, table_slots):
     """Log-odds of voxel keys (int64 (N, 3)); NaN where unknown."""
     n = keys.shape[0]
     out = np.full(n, np.nan, dtype=np.float32)

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.fileio import atomic_write
+from scan2terrain.octree.keys import KEY_OFFSET
 
 #: First line of every ``.bt`` file (``AbstractOccupancyOcTree::binaryFileHeader``).
 BINARY_HEADER = b"# Octomap OcTree binary file"
@@ -48,7 +49,6 @@ _COMMENT = b"# (feel free to add / change comments, but leave the first line as 
 #: Depth of a voxel (a leaf at the finest resolution).
 TREE_DEPTH = 16
 #: OctoMap's key of the cell holding coordinate 0.
-KEY_OFFSET = 32768
 
 _FREE, _OCCUPIED, _INNER = 1, 2, 3
 _TOKEN = re.compile(rb"[ \t\n\v\f\r]*([^ \t\n\v\f\r]+)")

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.octree import _kernels as K
+from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
 TREE_DEPTH = 16
 #: Largest per-scan dense block index (int32 entries): 64 MB.
@@ -123,7 +124,7 @@ class VoxelOctree:
             raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
         o32 = o.astype(np.float32)
         if not all(K.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32):
-            half = 32768 * self.resolution
+            half = KEY_OFFSET * self.resolution
             raise InputError(
                 None,
                 f"sensor origin {tuple(o)} is outside the octree's key range "
@@ -257,12 +258,12 @@ class VoxelOctree:
     def coord_to_key(self, xyz: NDArray[np.floating]) -> NDArray[np.int64]:
         """OctoMap keys of metric points (as float32, like OctoMap's point3d); -1 out of range."""
         p = np.asarray(xyz, dtype=np.float32).astype(np.float64)
-        k = np.floor(p * (1.0 / self.resolution)) + 32768
+        k = np.floor(p * (1.0 / self.resolution)) + KEY_OFFSET
         return np.where((k >= 0) & (k < 65536), k, -1).astype(np.int64)
 
     def key_to_coord(self, keys: NDArray[np.integer]) -> NDArray[np.float64]:
         """Voxel centres of keys, metres."""
-        return (np.asarray(keys, dtype=np.float64) - 32768 + 0.5) * self.resolution
+        return key_to_coord(keys, self.resolution)
 
     def __len__(self) -> int:
         """Number of known voxels."""
@@ -278,9 +279,7 @@ class VoxelOctree:
 
     def logodds_at_keys(self, keys: NDArray[np.integer]) -> NDArray[np.float32]:
         k = np.ascontiguousarray(np.atleast_2d(keys), dtype=np.int64)
-        return np.asarray(
-            K.lookup(k, self.resolution, self._values, self._table_keys, self._table_slots)
-        )
+        return np.asarray(K.lookup(k, self._values, self._table_keys, self._table_slots))
 
     def is_occupied(self, logodds: NDArray[np.float32]) -> NDArray[np.bool_]:
         """OctoMap's isNodeOccupied: log-odds >= the threshold (NaN, unknown, is not)."""
@@ -321,8 +320,8 @@ class VoxelOctree:
         keys, _ = self.voxels()
         if len(keys) == 0:
             return None
-        lo = (keys.min(axis=0).astype(np.float64) - 32768) * self.resolution
-        hi = (keys.max(axis=0).astype(np.float64) - 32768 + 1) * self.resolution
+        lo = (keys.min(axis=0).astype(np.float64) - KEY_OFFSET) * self.resolution
+        hi = (keys.max(axis=0).astype(np.float64) - KEY_OFFSET + 1) * self.resolution
         return lo, hi
 
     def memory_bytes(self) -> int:
