@@ -32,16 +32,23 @@ from scan2terrain.filters import (
     thin_wall_median_filter,
 )
 from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
-from scan2terrain.grids import axis_align, canvas, invert_occupancy, to_trinary, upsample
-from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+from scan2terrain.grids import (
+    axis_align,
+    canvas,
+    from_rank,
+    invert_occupancy,
+    to_rank,
+    to_trinary,
+    upsample,
+)
+from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
+from scan2terrain.types import UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
-#: Ranks used while filtering occupancy, so that unknown sits between free and occupied.
-_RANK_OF = {FREE: 0, UNKNOWN: 1, OCCUPIED: 2}
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 CONFIG_FILE = "scan2terrain.yaml"
 
@@ -77,18 +84,15 @@ def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]
     f = cfg.filter
     if not f.enabled or (f.kind == "none" and f.speckle_min_cells <= 1):
         return trinary
-    rank = np.full(trinary.shape, _RANK_OF[UNKNOWN], dtype=np.uint8)
-    rank[trinary == FREE] = _RANK_OF[FREE]
-    rank[trinary == OCCUPIED] = _RANK_OF[OCCUPIED]
-    rank = _apply_filter(rank, f.kind, f.size, fallback="majority")
+    rank = _apply_filter(to_rank(trinary), f.kind, f.size, fallback="majority")
     if f.speckle_min_cells > 1:
         rank = remove_speckles(
             rank,
-            value=_RANK_OF[OCCUPIED],
+            value=RANK_OCCUPIED,
             min_cells=f.speckle_min_cells,
-            replace_with=_RANK_OF[FREE],
+            replace_with=RANK_FREE,
         )
-    return np.array([FREE, UNKNOWN, OCCUPIED], dtype=np.int8)[rank]
+    return from_rank(rank)
 
 
 def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:

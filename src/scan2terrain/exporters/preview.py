@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.exporters.mapserver import trinary_shades
+from scan2terrain.grids.occupancy import to_rank
 
 #: Panels wider or taller than this are decimated (every k-th cell) to keep previews small.
 MAX_PANEL = 2048
@@ -34,7 +35,7 @@ def preview_png(before: NDArray[Any], after: NDArray[Any], *, occupancy: bool) -
     # Panels use 3..255, so palette entries RED and BLUE mean only the marks.
     grey_b, grey_a = np.maximum(_grey(b, occupancy), 3), np.maximum(_grey(a, occupancy), 3)
     if occupancy:  # unknown (-1) sits between free and occupied, not below free
-        b, a = _rank(b), _rank(a)
+        b, a = to_rank(b), to_rank(a)
     diff = 128 + grey_a // 2
     diff[a > b] = RED
     diff[a < b] = BLUE
@@ -59,8 +60,3 @@ def _grey(a: NDArray[Any], occupancy: bool) -> NDArray[np.uint8]:
         return trinary_shades(a.astype(np.int8))
     top = max(int(a.max(initial=0)), 1)
     return (a.astype(np.float64) * (255.0 / top) if top > 255 else a).astype(np.uint8)
-
-
-def _rank(a: NDArray[Any]) -> NDArray[np.int8]:
-    """free 0 < unknown 1 < occupied 2."""
-    return np.where(a < 0, 1, np.where(a > 0, 2, 0)).astype(np.int8)

@@ -5,7 +5,15 @@ the world's axes, up-sample); ``occupancy`` turns map values into the three clas
 needs.
 """
 
-from scan2terrain.grids.occupancy import invert_occupancy, to_trinary
+from scan2terrain.grids.occupancy import from_rank, invert_occupancy, to_rank, to_trinary
 from scan2terrain.grids.transform import axis_align, canvas, upsample
 
-__all__ = ["axis_align", "canvas", "invert_occupancy", "to_trinary", "upsample"]
+__all__ = [
+    "axis_align",
+    "canvas",
+    "from_rank",
+    "invert_occupancy",
+    "to_rank",
+    "to_trinary",
+    "upsample",
+]

@@ -31,3 +31,23 @@ def to_trinary(
 def invert_occupancy(data: NDArray[np.int8]) -> NDArray[np.int8]:
     """Swap free and occupied (``v -> 100 - v``); unknown stays unknown."""
     return np.where(data < 0, data, OCCUPIED - data.astype(np.int16)).astype(np.int8)
+
+
+#: Ranks of the three classes, ordered so that unknown sits between free and occupied: what the
+#: filters (as labels) and the preview (as "went up / went down") compare.
+RANK_FREE, RANK_UNKNOWN, RANK_OCCUPIED = 0, 1, 2
+_CLASS_OF_RANK = np.array([FREE, UNKNOWN, OCCUPIED], dtype=np.int8)
+
+
+def to_rank(trinary: NDArray[np.int8]) -> NDArray[np.uint8]:
+    """Trinary occupancy to ranks: free 0, occupied 2, anything else (unknown) 1."""
+    rank = np.full(trinary.shape, RANK_UNKNOWN, dtype=np.uint8)
+    rank[trinary == FREE] = RANK_FREE
+    rank[trinary == OCCUPIED] = RANK_OCCUPIED
+    return rank
+
+
+def from_rank(rank: NDArray[np.uint8]) -> NDArray[np.int8]:
+    """Ranks back to trinary occupancy (-1/0/100)."""
+    out: NDArray[np.int8] = _CLASS_OF_RANK[rank]
+    return out
