@@ -117,6 +117,25 @@ def _apply_filter(
     return a
 
 
+def terrain_heightmap(
+    heights: NDArray[np.float32],
+    resolution: float,
+    origin: Pose2D,
+    cfg: Config,
+    *,
+    pad_height: float,
+) -> Heightmap:
+    """World-aligned heights (metres, every cell known) -> up-sampled (``terrain.upsample``)
+    -> the heightmap image (``terrain.bit_depth``), padded at ``pad_height``."""
+    t = cfg.terrain
+    fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
+    return make_heightmap(
+        HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin),
+        bit_depth=t.bit_depth,
+        pad_height=pad_height,
+    )
+
+
 def place_on_canvas(
     data: NDArray[ScalarT], origin: Pose2D, resolution: float, cfg: Config, *, fill: int
 ) -> tuple[NDArray[ScalarT], Pose2D]:
@@ -176,16 +195,11 @@ def occupancy_world(
 
     aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
     t = cfg.terrain
-    fine, fine_res = upsample(aligned, grid.resolution, t.upsample)
     heights = occupancy_to_heights(
-        fine, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height
+        aligned, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height
     )
     pad = unknown_level(t.unknown, wall_height=t.height, unknown_height=t.unknown_height)
-    hm = make_heightmap(
-        HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
-        bit_depth=t.bit_depth,
-        pad_height=pad,
-    )
+    hm = terrain_heightmap(heights, grid.resolution, world_origin, cfg, pad_height=pad)
     return _write(
         out,
         cfg,
@@ -281,16 +295,8 @@ def height_world(
     if f.enabled and f.kind != "none":
         filled = median_filter(filled, size=f.size)
     aligned, world_origin = axis_align(filled, grid.origin, grid.resolution, fill=floor)
-    t = cfg.terrain
-    fine, fine_res = upsample(aligned, grid.resolution, t.upsample)
-    hm = make_heightmap(
-        HeightGrid(
-            fine.astype(np.float32), np.ones(fine.shape, dtype=bool), fine_res, world_origin
-        ),
-        bit_depth=t.bit_depth,
-        pad_height=floor,
-    )
-    top = float(fine.max(initial=floor))
+    hm = terrain_heightmap(aligned, grid.resolution, world_origin, cfg, pad_height=floor)
+    top = float(aligned.max(initial=floor))
     return _write(
         out,
         cfg,
@@ -332,14 +338,9 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     values, origin = place_on_canvas(values, origin, res, cfg, fill=0)
     filtered = filter_grey(values, cfg)
     aligned, world_origin = axis_align(filtered, origin, res, fill=0)
-    t = cfg.terrain
-    fine, fine_res = upsample(aligned, res, t.upsample)
-    heights = (fine.astype(np.float32) * np.float32(t.height / img.max_value)).astype(np.float32)
-    hm = make_heightmap(
-        HeightGrid(heights, np.ones(heights.shape, dtype=bool), fine_res, world_origin),
-        bit_depth=t.bit_depth,
-        pad_height=0.0,
-    )
+    scale = np.float32(cfg.terrain.height / img.max_value)
+    heights = (aligned.astype(np.float32) * scale).astype(np.float32)
+    hm = terrain_heightmap(heights, res, world_origin, cfg, pad_height=0.0)
     top = float(heights.max(initial=0.0))
     levels = (0.0, top / 2, top)
     return _write(
