@@ -28,6 +28,8 @@ if [ ! -x .venv/bin/python ]; then
   fi
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
+# Open3D's wheel links libusb even when headless.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then apt_install libusb-1.0-0; fi
 if [ "$extra" = "test" ]; then
   need=()
   for pc in sdformat12 ignition-common4-graphics; do

@@ -104,3 +104,51 @@ class HeightGrid:
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.heights.shape[0]), int(self.heights.shape[1]))
+
+
+@dataclass(frozen=True)
+class Transform:
+    """A rigid transform (rotation then translation), e.g. the pose of a sensor frame in the fixed
+    frame: ``p_fixed = rotation @ p_sensor + translation``. float64 throughout."""
+
+    rotation: NDArray[np.float64]  #: (3, 3), orthonormal, det +1
+    translation: NDArray[np.float64]  #: (3,), metres
+
+    @staticmethod
+    def identity() -> Transform:
+        return Transform(np.eye(3), np.zeros(3))
+
+    @staticmethod
+    def from_quaternion(
+        translation: tuple[float, float, float] | NDArray[np.float64],
+        quaternion_xyzw: tuple[float, float, float, float] | NDArray[np.float64],
+    ) -> Transform:
+        """From a ROS translation and quaternion (x, y, z, w; normalised here)."""
+        q = np.asarray(quaternion_xyzw, dtype=np.float64)
+        n = float(np.linalg.norm(q))
+        if not (n > 0 and math.isfinite(n)):
+            raise ValueError(f"quaternion {tuple(q)} has no direction")
+        x, y, z, w = q / n
+        r = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        return Transform(r, np.asarray(translation, dtype=np.float64).reshape(3).copy())
+
+    def apply(self, points: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Transform points (N, 3) into float64 (N, 3)."""
+        p = np.asarray(points, dtype=np.float64)
+        return p @ self.rotation.T + self.translation  # type: ignore[no-any-return]
+
+    def compose(self, other: Transform) -> Transform:
+        """``self * other``: apply ``other`` first, then ``self`` (tf2's multiplication)."""
+        return Transform(
+            self.rotation @ other.rotation, self.rotation @ other.translation + self.translation
+        )
+
+    def inverse(self) -> Transform:
+        rt = self.rotation.T
+        return Transform(rt, -(rt @ self.translation))
