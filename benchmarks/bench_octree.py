@@ -553,7 +553,10 @@ def run(*, quick: bool, tmp: Path) -> None:
         ]:
             acc: dict[str, float] = {}
             gc.collect()
-            with stage_timer(acc, (*STAGES, "point_blocks", "mark_points")):
+            with stage_timer(
+                acc,
+                (*STAGES, "point_blocks", "find_point_slots", "settle_points", "mark_point_bits"),
+            ):
                 t0 = time.perf_counter()
                 build()
                 total = time.perf_counter() - t0

@@ -550,9 +550,10 @@ def cast_serial(
 
 
 @nb.njit(parallel=True, **_JIT)
-def apply_blocks(values, bits, touched, n_touched, model):
+def apply_blocks(values, bits, touched, n_touched, model, all_hits):
     """OctoMap's updateNodeLogOdds once per marked voxel of the touched blocks (a hit where the
-    hit bit is set, else a miss where any thread's miss bit is set), then clear the bits.
+    hit bit is set, else a miss where any thread's miss bit is set; with ``all_hits``, as for
+    end points only, every marked voxel is a hit), then clear the bits.
     Blocks are disjoint, so they go to the cores in parallel. Returns (hits, misses)."""
     lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
     hits = 0
@@ -568,6 +569,8 @@ def apply_blocks(values, bits, touched, n_touched, model):
             bits[cs, w] = 0
             if any_word == 0:
                 continue
+            if all_hits:
+                hit_word = any_word
             for b in range(64):
                 bit = np.uint64(1) << np.uint64(b)
                 if not any_word & bit:
@@ -607,52 +610,71 @@ def point_blocks(points, resolution):
     return bk, local
 
 
-@nb.njit(**_JIT)
-def mark_points(
-    bk,
-    local,
-    start,
-    bits,
-    block_xyz,
-    stamp,
-    table_keys,
-    table_slots,
-    counts,
-    touched,
-    stats,
-):
-    """End points only: mark every point's voxel as a hit (no ray casting); resumable.
-    ``bk``/``local`` from :func:`point_blocks`. stats += [points inserted, 0, points outside
-    the key range]. The hash probe is written out: a call per point costs more than the probe."""
-    scan = counts[STAMP]
+@nb.njit(parallel=True, **_JIT)
+def find_point_slots(bk, table_keys, table_slots):
+    """End points only, first pass, on every core (the table is only read): the slot of each
+    point's block, -1 if the block is not allocated yet, -2 for a point outside the key range.
+    The hash probe is written out: a call per point costs more than the probe."""
+    n = bk.shape[0]
+    slots = np.empty(n, dtype=np.int32)
     mask = np.int64(table_keys.shape[0] - 1)
-    ck, cs = np.int64(-1), np.int64(-1)
+    chunk = 4096
+    for c in nb.prange((n + chunk - 1) // chunk):
+        ck, cs = np.int64(-3), np.int32(-1)
+        for i in range(c * chunk, min(n, (c + 1) * chunk)):
+            k = bk[i]
+            if k < 0:
+                slots[i] = -2
+                continue
+            if k != ck:
+                ck = k
+                h = _hash(k, mask)
+                cs = np.int32(-1)
+                while True:
+                    tk = table_keys[h]
+                    if tk == k:
+                        cs = table_slots[h]
+                        break
+                    if tk == EMPTY:
+                        break
+                    h = (h + 1) & mask
+            slots[i] = cs
+    return slots
+
+
+@nb.njit(**_JIT)
+def settle_points(
+    bk, slots, start, bits, block_xyz, stamp, table_keys, table_slots, counts, touched, stats
+):
+    """End points only, second pass (serial): allocate the blocks :func:`find_point_slots` did
+    not find, fill in their slots, and record every block as touched by this call; resumable.
+    stats += [points inserted, 0, points outside the key range]."""
+    scan = counts[STAMP]
+    ck, cs = np.int64(-3), np.int64(-1)
     n = bk.shape[0]
     for i in range(start, n):
-        if (
-            counts[N_BLOCKS] + 1 > block_xyz.shape[0]
-            or counts[N_TOUCHED] + 1 > touched.shape[0]
-            or 2 * (counts[N_BLOCKS] + 1) > table_keys.shape[0]
-        ):
-            return i, _room(1, counts, block_xyz, touched, table_keys)
-        k = bk[i]
-        if k < 0:
+        s = slots[i]
+        if s == -2:
             stats[2] += 1
             continue
+        k = bk[i]
         if k != ck:
-            ck = k
-            h = _hash(k, mask)
-            cs = -1
-            while True:
-                tk = table_keys[h]
-                if tk == k:
-                    cs = table_slots[h]
-                    break
-                if tk == EMPTY:
-                    break
-                h = (h + 1) & mask
-            if cs < 0 or stamp[cs] != scan:
-                cs = _slot(
+            if s < 0:  # perhaps allocated by an earlier point of this pass: probe, inline
+                mask = np.int64(table_keys.shape[0] - 1)
+                h = _hash(k, mask)
+                while True:
+                    tk = table_keys[h]
+                    if tk == k:
+                        s = table_slots[h]
+                        break
+                    if tk == EMPTY:
+                        break
+                    h = (h + 1) & mask
+            if s < 0 or stamp[s] != scan:
+                status = _room(1, counts, block_xyz, touched, table_keys)
+                if status != DONE:
+                    return i, status
+                s = _slot(
                     k,
                     k >> 26,
                     (k >> 13) & 8191,
@@ -664,10 +686,28 @@ def mark_points(
                     counts,
                     touched,
                 )
-        loc = local[i]
-        bits[cs, loc >> 6] |= np.uint64(1) << np.uint64(loc & 63)
+            ck, cs = k, s
+        slots[i] = cs
         stats[0] += 1
     return n, DONE
+
+
+@nb.njit(parallel=True, **_JIT)
+def mark_point_bits(slots, local, planes, bits):
+    """End points only, third pass, on every core: thread t sets each of its points' bits in
+    its own words 8 + 8t .. 15 + 8t (chunks t, t + T, ...), so no bit is lost to a race;
+    :func:`apply_blocks` with ``all_hits`` reads every plane as hits."""
+    n = slots.shape[0]
+    chunk = 4096
+    n_chunks = (n + chunk - 1) // chunk
+    for t in nb.prange(planes):
+        plane = 8 + 8 * t
+        for c in range(t, n_chunks, planes):
+            for i in range(c * chunk, min(n, (c + 1) * chunk)):
+                cs = slots[i]
+                if cs >= 0:
+                    loc = local[i]
+                    bits[cs, plane + (loc >> 6)] |= np.uint64(1) << np.uint64(loc & 63)
 
 
 @nb.njit(**_JIT)

@@ -137,8 +137,9 @@ class VoxelOctree:
         K.flag_blocks(o32, ends, kind, res, dense, box)
         self._until_done(lambda i: K.alloc_flagged(dense, box, i, *self._storage()))
         self._until_done(lambda i: K.mark_hits(ends, kind, res, dense, box, i, *self._storage()))
-        planes = min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
-        deferred = K.cast_parallel(o32, ends, kind, res, planes, dense, box, *self._storage())
+        deferred = K.cast_parallel(
+            o32, ends, kind, res, self._planes(), dense, box, *self._storage()
+        )
         self._until_done(
             lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
         )
@@ -169,8 +170,10 @@ class VoxelOctree:
         stats = np.zeros(3, dtype=np.int64)
         self._next_scan()
         bk, local = K.point_blocks(pts, self.resolution)
-        self._until_done(lambda i: K.mark_points(bk, local, i, *self._storage(), stats))
-        hits, misses = self._apply()
+        slots = K.find_point_slots(bk, self._table_keys, self._table_slots)
+        self._until_done(lambda i: K.settle_points(bk, slots, i, *self._storage(), stats))
+        K.mark_point_bits(slots, local, self._planes(), self._bits)
+        hits, misses = self._apply(all_hits=True)
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
 
     def _storage(self) -> tuple[NDArray[Any], ...]:
@@ -198,9 +201,18 @@ class VoxelOctree:
                 return
             self._grow(status)
 
-    def _apply(self) -> tuple[int, int]:
+    def _planes(self) -> int:
+        """Bit planes the parallel kernels may use: one per numba thread, as many as exist."""
+        return min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
+
+    def _apply(self, *, all_hits: bool = False) -> tuple[int, int]:
         hits, misses = K.apply_blocks(
-            self._values, self._bits, self._touched, int(self._counts[K.N_TOUCHED]), self._model
+            self._values,
+            self._bits,
+            self._touched,
+            int(self._counts[K.N_TOUCHED]),
+            self._model,
+            all_hits,
         )
         self._counts[K.N_TOUCHED] = 0
         return int(hits), int(misses)
