@@ -740,4 +740,5 @@ def set_values(keys, logodds, values, block_xyz, table_keys, table_slots, counts
             block_xyz[slot, 1] = by
             block_xyz[slot, 2] = bz
             table_insert(table_keys, table_slots, k, slot)
+            values[slot, :] = np.nan
         values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)] = logodds[i]

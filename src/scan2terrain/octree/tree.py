@@ -91,12 +91,12 @@ class VoxelOctree:
         self._occ = logodds(m.occupancy)
         self._model = np.array([self._hit, self._miss, self._cmin, self._cmax], dtype=np.float32)
         # Storage starts small and doubles; see _grow.
-        self._values = np.full((1024, 512), np.nan, dtype=np.float32)
+        self._values = np.empty((1024, 512), dtype=np.float32)
         # Hit words, then one plane of miss words per thread numba may run.
         threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         self._bits = np.zeros((1024, 8 * (1 + threads)), dtype=np.uint64)
         self._block_xyz = np.zeros((1024, 3), dtype=np.int32)
-        self._stamp = np.full(1024, -1, dtype=np.int64)
+        self._stamp = np.empty(1024, dtype=np.int64)
         self._table_keys = np.full(4096, K.EMPTY, dtype=np.int64)
         self._table_slots = np.zeros(4096, dtype=np.int32)
         self._counts = np.zeros(3, dtype=np.int64)  # see _kernels.N_BLOCKS, N_TOUCHED, STAMP
@@ -133,6 +133,7 @@ class VoxelOctree:
         res = self.resolution
         ends, kind, stats = K.scan_rays(pts, o32, float(max_range), res)
         self._next_scan()
+        first_new = self.n_blocks
         dense, box = self._scan_box(o32, ends)
         K.flag_blocks(o32, ends, kind, res, dense, box)
         self._until_done(lambda i: K.alloc_flagged(dense, box, i, *self._storage()))
@@ -143,6 +144,7 @@ class VoxelOctree:
         self._until_done(
             lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
         )
+        self._fresh_blocks(first_new)
         hits, misses = self._apply()
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
 
@@ -169,10 +171,12 @@ class VoxelOctree:
         pts, dropped = self._points(points)
         stats = np.zeros(3, dtype=np.int64)
         self._next_scan()
+        first_new = self.n_blocks
         bk, local = K.point_blocks(pts, self.resolution)
         slots = K.find_point_slots(bk, self._table_keys, self._table_slots)
         self._until_done(lambda i: K.settle_points(bk, slots, i, *self._storage(), stats))
         K.mark_point_bits(slots, local, self._planes(), self._bits)
+        self._fresh_blocks(first_new)
         hits, misses = self._apply(all_hits=True)
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
 
@@ -200,6 +204,10 @@ class VoxelOctree:
             if status == K.DONE:
                 return
             self._grow(status)
+
+    def _fresh_blocks(self, first: int) -> None:
+        """Blocks allocated since ``first`` start with every voxel unknown (NaN)."""
+        self._values[first : self.n_blocks] = np.nan
 
     def _planes(self) -> int:
         """Bit planes the parallel kernels may use: one per numba thread, as many as exist."""
@@ -233,18 +241,20 @@ class VoxelOctree:
         by the scan, or a larger hash table (kept at most half full)."""
         n_blocks = int(self._counts[K.N_BLOCKS])
         if status == K.NEED_BLOCKS:
-            old = len(self._bits)
-            new = max(2 * old, n_blocks + 4096)
-            # resize() reallocates in place: large arrays move by remapping pages, not copying.
-            for name, fill in (
-                ("_values", np.nan),
-                ("_bits", 0),
-                ("_block_xyz", 0),
-                ("_stamp", -1),
+            new = max(2 * len(self._bits), n_blocks + 4096)
+            # Fresh arrays, only the used rows copied: the tail stays untouched virtual memory
+            # (np.empty / np.zeros map pages lazily). A block's values are set to NaN when it is
+            # allocated (_fresh_blocks, set_values), its bits are zero from np.zeros.
+            for name, make in (
+                ("_values", np.empty),
+                ("_bits", np.zeros),
+                ("_block_xyz", np.zeros),
+                ("_stamp", np.empty),
             ):
                 a = getattr(self, name)
-                a.resize((new, *a.shape[1:]), refcheck=False)
-                a[old:] = fill
+                b = make((new, *a.shape[1:]), dtype=a.dtype)
+                b[:n_blocks] = a[:n_blocks]
+                setattr(self, name, b)
         elif status == K.NEED_TOUCHED:
             n = int(self._counts[K.N_TOUCHED])
             touched = np.empty(2 * len(self._touched), dtype=np.int64)

@@ -45,6 +45,7 @@ definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choi
 
 from __future__ import annotations
 
+import codecs
 import os
 import shutil
 import sys
@@ -217,7 +218,7 @@ class _Ros1Reader(_RosbagsReader1):
 def _sniff(path: Path) -> str:
     """The format of a file from its first bytes: ros1, rosrecord, sqlite3, mcap, zstd, ..."""
     with path.open("rb") as f:
-        head = f.read(64)
+        head = f.read(256)
     if not head:
         return "empty"
     for kind, magic in (
@@ -231,11 +232,12 @@ def _sniff(path: Path) -> str:
             return kind
     if head.startswith(b"#ROSBAG"):
         return "ros1-other"
+    printable = all(b >= 0x20 or b in b"\t\n\r\f" for b in head)
     try:
-        head.decode("utf-8")
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
     except UnicodeDecodeError:
         return "unknown"
-    return "text"
+    return "text" if printable else "unknown"
 
 
 def _not_a_bag(path: Path, kind: str) -> InputError:
@@ -339,8 +341,11 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
     raise _not_a_bag(path, kind)
 
 
-def _explain(exc: BaseException) -> str:
-    """One line for an exception raised by rosbags (or its sqlite/mcap/zstd backends)."""
+def _explain(exc: BaseException, *, reading: bool = False) -> str:
+    """One line for an exception raised by rosbags (or its sqlite/mcap/zstd backends).
+
+    ``reading``: raised while streaming messages, after the bag opened fine.
+    """
     text = " ".join(str(a) for a in exc.args) if exc.args else ""
     text = text.strip().rstrip(".") or type(exc).__name__
     low = text.lower()
@@ -353,6 +358,11 @@ def _explain(exc: BaseException) -> str:
         return "the MCAP file is truncated or damaged (its end marker is missing)"
     if "malformed" in low or "not a database" in low:
         return "the sqlite3 file is truncated or damaged (database disk image is malformed)"
+    if reading:
+        return (
+            f"cannot read message data ({text}, {type(exc).__name__}): "
+            "the file is damaged or truncated"
+        )
     return f"cannot read the bag: {text} ({type(exc).__name__})"
 
 
@@ -517,7 +527,7 @@ class Bag:
         except InputError:
             raise
         except Exception as exc:  # rosbags' backends raise many types mid-stream; name the file
-            raise InputError(self._owner(conns), _explain(exc)) from None
+            raise InputError(self._owner(conns), _explain(exc, reading=True)) from None
 
     def _owner(self, conns: list[Connection]) -> Path:
         """The file to name for an error: in a split set, the one holding these connections."""

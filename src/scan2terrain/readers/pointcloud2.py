@@ -59,9 +59,9 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
         fitting in ``point_step``; ``row_step`` shorter than a row; ``data`` shorter than the
         declared points.
     """
-    records = _records(msg, _XYZ)
-    if records.size == 0:
+    if int(msg.height) * int(msg.width) == 0:
         return np.zeros((0, 3))
+    records = _records(msg, _XYZ)
     xyz = np.empty((records.size, 3))
     for axis, name in enumerate(_XYZ):  # three strided gathers, not a loop over points
         xyz[:, axis] = records[name].reshape(-1)
@@ -133,9 +133,10 @@ def _records(msg: Any, names: Sequence[str]) -> NDArray[np.void]:
             f"PointCloud2 data holds {data.size} bytes, but {height} x {width} points of "
             f"{point_step} bytes (row_step {row_step}) need {need}",
         )
-    return np.ndarray(
+    records: NDArray[np.void] = np.ndarray(
         (height, width), dtype=dtype, buffer=data, offset=0, strides=(row_step, point_step)
     )
+    return records
 
 
 def _dtype(msg: Any, names: Sequence[str], point_step: int) -> np.dtype[np.void]:

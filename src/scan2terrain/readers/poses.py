@@ -430,18 +430,23 @@ class _Edge:
     def pending(self) -> bool:
         return bool(self.times) or bool(self.chunks)
 
+    def flush(self) -> None:
+        """Move the listed samples into a chunk, so chunks stay in arrival order."""
+        if self.times:
+            values = np.asarray(self.values, dtype=np.float64).reshape(-1, 7)
+            self.chunks.append((np.asarray(self.times, dtype=np.int64), values))
+            self.times, self.values = [], []
+
     def get_track(self, max_gap_ns: int | None, frame_id: str, child: str) -> PoseTrack:
         if self.track is not None and not self.pending():
             return self.track
+        self.flush()
         parts_t = [c[0] for c in self.chunks]
         parts_v = [c[1] for c in self.chunks]
         if self.track is not None:  # rebuild from what was built plus what came since
             tr = self.track
             parts_t.insert(0, tr.times_ns)
             parts_v.insert(0, np.hstack([tr.translations, tr.quaternions_xyzw]))
-        if self.times:
-            parts_t.append(np.asarray(self.times, dtype=np.int64))
-            parts_v.append(np.asarray(self.values, dtype=np.float64).reshape(-1, 7))
         values = np.concatenate(parts_v)
         self.track = PoseTrack(
             np.concatenate(parts_t),
@@ -451,7 +456,7 @@ class _Edge:
             frame_id=frame_id,
             child_frame_id=child,
         )
-        self.times, self.values, self.chunks = [], [], []
+        self.chunks = []
         return self.track
 
 
@@ -596,6 +601,7 @@ class TfBuffer:
             return
         edge = self._edge_for(parent, child, False, n)
         if edge is not None:
+            edge.flush()
             edge.chunks.append((t[good].astype(np.int64), np.hstack([p[good], q[good]])))
 
     def add_track(self, track: PoseTrack, parent: str = "", child: str = "") -> None:
@@ -953,6 +959,29 @@ def _tum_problem(lines: list[tuple[int, str]]) -> str:
     return "cannot parse the file as TUM poses"  # pragma: no cover - loadtxt and float() agree
 
 
+def _seconds_to_ns(texts: list[str], seconds: Floats) -> Ints:
+    """Times written in decimal seconds -> int64 nanoseconds, exactly where the text allows.
+
+    A float64 holds a Unix time only to ~0.2 us, which would move a pose off the scan stamp it
+    was written for (and the last pose before it, refusing that scan). Plain decimals
+    (``[+-]digits[.digits]``) are converted digit by digit, truncated after 9 decimals; other
+    spellings (``1.7e9``) go through the float, rounded to the nearest nanosecond.
+    """
+    s = np.asarray(texts, dtype=str)
+    negative = np.char.startswith(s, "-")
+    parts = np.char.partition(np.char.lstrip(s, "+-"), ".")
+    whole, frac = parts[:, 0], parts[:, 2]
+    plain = (
+        (np.char.isdigit(whole) | (whole == ""))
+        & (np.char.isdigit(frac) | (frac == ""))
+        & ((whole != "") | (frac != ""))
+    )
+    ns = np.where(plain & (whole != ""), whole, "0").astype(np.int64) * NS_PER_S
+    ns += np.char.ljust(np.where(plain, frac, ""), 9, "0").astype("U9").astype(np.int64)
+    ns = np.where(negative, -ns, ns)
+    return np.where(plain, ns, np.rint(seconds * NS_PER_S).astype(np.int64))
+
+
 def read_tum(
     path: Path | str,
     *,
@@ -962,8 +991,8 @@ def read_tum(
 ) -> PoseTrack:
     """Read a TUM trajectory file: one pose per line, ``t x y z qx qy qz qw``.
 
-    ``t`` is in seconds (float; converted to the nearest nanosecond, so a Unix time keeps about
-    0.2 us), the position in metres, the quaternion ``(x, y, z, w)`` of the sensor (or body) in
+    ``t`` is in seconds (decimals are read exactly to the nanosecond, not through a float), the
+    position in metres, the quaternion ``(x, y, z, w)`` of the sensor (or body) in
     the trajectory's frame. ``#`` starts a comment; blank lines are ignored; the poses may come
     in any order (of equal times the last is kept).
 
@@ -1008,7 +1037,7 @@ def read_tum(
     bad = ~(np.linalg.norm(data[:, 4:], axis=1) > 0)
     if bad.any():
         raise InputError(path, f"line {rows[int(np.argmax(bad))][0]} has a zero quaternion")
-    times = np.rint(data[:, 0] * NS_PER_S).astype(np.int64)
+    times = _seconds_to_ns([body.split(None, 1)[0] for _, body in rows], data[:, 0])
     if np.unique(times).size < 2:
         raise InputError(
             path,
