@@ -216,7 +216,6 @@ def occupancy_world(
 def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
     """An OctoMap ``.bt`` file, or an OctoMap text scan file (ray-cast into a new octree), to a
     world folder through octomap_server's 2D projection or a 2.5D height grid."""
-    from scan2terrain.grids import projection
     from scan2terrain.octree.bt import bt_bytes, read_bt
     from scan2terrain.readers.octomap_scan import is_scan_file
 
@@ -232,6 +231,35 @@ def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
         bt = read_bt(source)
         keys, occupied = bt.expand()
         resolution = bt.resolution
+    return voxels_world(
+        keys,
+        occupied,
+        resolution,
+        source=source,
+        out=out,
+        cfg=cfg,
+        overwrite=overwrite,
+        extra=extra,
+    )
+
+
+def voxels_world(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    resolution: float,
+    *,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    overwrite: bool,
+    extra: dict[str, bytes] | None = None,
+) -> Result:
+    """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
+    projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
+    centres when ``octree.points`` asks for them."""
+    from scan2terrain.grids import projection
+
+    extra = dict(extra or {})
     if len(keys) == 0:
         raise InputError(source, "the octree holds no known voxel")
     o = cfg.octree
