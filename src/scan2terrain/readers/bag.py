@@ -4,7 +4,7 @@ Everything is read through :class:`rosbags.highlevel.AnyReader`, with ROS 2 Humb
 definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choices:
 
 * **What can be opened.** A ROS1 ``.bag`` file; several ``.bag`` files of one split recording
-  (a list of paths, or a folder holding only ``.bag`` files); a rosbag2 folder (``metadata.yaml``
+  (a list of paths, or a folder of ``.bag`` files); a rosbag2 folder (``metadata.yaml``
   plus ``.db3``/``.mcap``, also with ``compression_mode: FILE`` zstd, which rosbags decompresses
   itself); a standalone ``.db3`` or ``.mcap`` file without ``metadata.yaml``; a standalone
   zstd-compressed ``.mcap.zstd``/``.db3.zstd`` file, decompressed here into a temporary folder
@@ -31,7 +31,7 @@ definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choi
 * **Unknown message types** (no definition in the bag nor in ROS 2 Humble, e.g. a custom type
   in a schema-less sqlite3 bag) never stop the run: such topics are listed in
   :attr:`Bag.skipped` with the reason, and *one* :class:`BagWarning` (a ``UserWarning``) is
-  issued by :func:`open_bag`. Library code never prints; the CLI shows warnings on stderr.
+  issued by :func:`open_bag`. Library code never prints; the CLI is to show warnings on stderr.
   Asking :meth:`Bag.messages` for a skipped topic is an ``InputError``.
 * **Times** are bag (record) times in integer nanoseconds. Ranges are *inclusive* at both ends
   (``end_ns`` is the last message's time). :func:`resolve_time` turns a user value into
@@ -120,9 +120,9 @@ _MAGIC_MCAP = b"\x89MCAP0\r\n"
 _MAGIC_ZSTD = b"\x28\xb5\x2f\xfd"
 _STORAGE_SUFFIX = {"sqlite3": ".db3", "mcap": ".mcap"}
 _LEGACY_HINT = (
-    "this is the pre-2010 '#ROSRECORD V1.2' bag format, which nothing outside ROS1 reads; "
-    "convert it in ROS1 with 'rosbag fix old.bag new.bag' (then 'rosbag reindex new.bag' if "
-    "needed)"
+    "this is the pre-2010 '#ROSRECORD V1.2' bag format, which only ROS1's own rosbag reads; "
+    "convert it in ROS1 with 'rosbag reindex old.bag' (rewrites it as V2.0, keeping "
+    "old.orig.bag) or 'rosbag fix old.bag new.bag'"
 )
 
 
@@ -551,27 +551,34 @@ class Bag:
         start_ns, end_ns : int, optional
             Inclusive bag-time bounds in nanoseconds (see :func:`resolve_time`).
 
-        Yields
-        ------
-        tuple
+        Returns
+        -------
+        iterator of (str, int, object)
             Topic, record time (ns), and the message object rosbags deserialised (fields as
-            attributes, arrays as numpy arrays).
+            attributes, numeric arrays as numpy arrays). Messages of two bags never compare
+            equal, even with equal fields: each bag has its own generated classes.
 
         Raises
         ------
         InputError
-            Unknown or skipped topic, or data that cannot be read (truncated, damaged).
+            Unknown or skipped topic (at the call), or data that cannot be read (truncated,
+            damaged; while iterating).
         """
-        _, conns = self._conns(topics)
+        _, conns = self._conns(topics)  # checked now, not at the first next()
+        return self._decoded(conns, start_ns, end_ns)
+
+    def _decoded(
+        self, conns: list[Connection], start_ns: int | None, end_ns: int | None
+    ) -> Iterator[tuple[str, int, object]]:
         deserialize = self._reader.deserialize
         for conn, t_ns, raw in self._raw(conns, start_ns, end_ns):
             try:
                 msg = deserialize(raw, conn.msgtype)
             except Exception as exc:  # a damaged message: its bytes do not fit the definition
                 raise InputError(
-                    self.path,
+                    self._owner([conn]),
                     f"message on {conn.topic} at {(t_ns - self.start_ns) / 1e9:.3f} s cannot be "
-                    f"decoded as {conn.msgtype}: {_explain(exc)}",
+                    f"decoded as {conn.msgtype} ({exc or type(exc).__name__})",
                 ) from None
             yield conn.topic, int(t_ns), msg
 
@@ -605,12 +612,19 @@ class Bag:
             return
         lo = self.start_ns if start_ns is None else start_ns
         hi = self.end_ns if end_ns is None else end_ns
-        raise InputError(
-            self.path,
-            f"no messages on {', '.join(names)} between {(lo - self.start_ns) / 1e9:.3f} s and "
-            f"{(hi - self.start_ns) / 1e9:.3f} s from the bag start (the bag spans 0 to "
-            f"{self.duration_s:.3f} s)",
-        )
+        span = f"the bag spans 0 to {self.duration_s:.3f} s"
+        if lo > self.end_ns:
+            why = "the time range starts after the bag's last message"
+        elif hi < self.start_ns:
+            why = "the time range ends before the bag's first message"
+        elif lo > hi:
+            why = "the time range ends before it starts"
+        else:
+            why = (
+                f"between {(lo - self.start_ns) / 1e9:.3f} s and "
+                f"{(hi - self.start_ns) / 1e9:.3f} s from the bag start"
+            )
+        raise InputError(self.path, f"no messages on {', '.join(names)}: {why} ({span})")
 
     def frame_ids(self, topic: str, max_messages: int = 20) -> frozenset[str]:
         """Frame names used by the first messages of a topic, leading slashes removed.
@@ -644,6 +658,20 @@ def _undecodable(typestore: Typestore, msgtype: str) -> str | None:
     except Exception as exc:  # rosbags' code generator rejecting a definition
         return f"the definition of {msgtype} cannot be used ({exc})"
     return None
+
+
+def _culprit(source: _Source, default: Path) -> Path:
+    """Which file of a split ROS1 set fails to open on its own (the first one if none does)."""
+    if len(source.paths) == 1:
+        return default
+    for given, read in zip(source.paths, source.read, strict=True):
+        reader = _Ros1Reader(read)
+        try:
+            reader.open()
+        except Exception:  # the same failure as in open_bag, now attributed to one file
+            return given
+        reader.close()
+    return default
 
 
 def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
@@ -682,7 +710,7 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
                 reader.readers = [_Ros1Reader(p) for p in source.read]
             reader.open()
         except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
-            raise InputError(where, _explain(exc)) from None
+            raise InputError(_culprit(source, where), _explain(exc)) from None
         stack.callback(reader.close)
         if reader.message_count == 0:
             raise InputError(where, "the bag holds no messages")
