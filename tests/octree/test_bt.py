@@ -608,7 +608,7 @@ def test_point_files_are_deterministic(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("name", "points", "message"),
     [
-        ("p.xyz", np.zeros((1, 3)), "extension"),
+        ("p.obj", np.zeros((1, 3)), "extension"),
         ("p", np.zeros((1, 3)), "extension"),
         ("p.ply", np.zeros((2, 2)), r"\(N, 3\)"),
         ("p.pcd", np.array([[0.0, np.nan, 0.0]]), "finite"),

@@ -195,7 +195,7 @@ def test_last_row_may_omit_its_padding() -> None:
     assert got.shape == (6, 3)
     np.testing.assert_array_equal(got, reference_xyz(full))
     msg.data = msg.data[:-1]  # one byte of the last point missing
-    with pytest.raises(InputError, match="holds 75 bytes.*need 76"):
+    with pytest.raises(InputError, match=r"holds 75 bytes.*need 76"):
         pointcloud2_xyz(msg)
 
 

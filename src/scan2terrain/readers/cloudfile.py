@@ -9,8 +9,8 @@ Which library reads what, and why:
   ``binary_compressed`` (LZF) and PLY files with list properties before or inside the vertex
   element. Open3D is not used for everything because on bad input it prints to the console and
   returns no points, or (short ASCII PCD/PLY data, truncated binary PLY; Open3D 0.20) returns
-  uninitialised memory as points; so every size is checked before it is called, its point count
-  afterwards, and its import (~1.5 s) is paid only when needed.
+  uninitialised memory as points; so sizes are checked before it is called wherever the header
+  allows, its point count afterwards, and its import (~1.5 s) is paid only when needed.
 * ``.xyz .xyzn .xyzrgb .pts .txt .csv``: ``numpy.loadtxt`` (its C parser, no loop per row). A
   header line picks the x/y/z columns by name (``x``, ``X``, ``"X"``, ``//X``, in any order);
   without one the first three columns are x, y, z. Open3D skips unreadable lines silently and
@@ -185,6 +185,8 @@ def _read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
         size_l, count_l = [int(s) for s in sizes], [int(c) for c in counts]
     except ValueError:
         raise InputError(path, "PCD header: SIZE and COUNT must be integers") from None
+    if min(size_l, default=1) < 1 or min(count_l, default=0) < 0:
+        raise InputError(path, "PCD header: SIZE must be positive and COUNT not negative")
     offsets = np.concatenate([[0], np.cumsum(np.multiply(size_l, count_l))]).tolist()
     columns = np.concatenate([[0], np.cumsum(count_l)]).tolist()
     step = int(offsets[-1])
@@ -205,9 +207,8 @@ def _read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
         text = _decode(path, raw[start:])
         pts = _loadtxt(path, io.StringIO(text), cols, delimiter=None, skiprows=0)
         if len(pts) != n:
-            raise InputError(
-                path, f"truncated: PCD header says {n} points, the data has {len(pts)}"
-            )
+            cut = "truncated: " if len(pts) < n else ""
+            raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(pts)}")
         return pts, "pcd ascii"
     if kind == "binary":
         _need(path, len(raw), start + n * step, f"{n} points of {step} bytes")
