@@ -197,6 +197,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
     _common(t)
+    _octree_options(t)
+    _bag_commands(sub)
+    return parser
+
+
+def _octree_options(p: argparse.ArgumentParser) -> None:
+    t = p.add_argument_group("octree and grid")
     t.add_argument(
         "--resolution",
         type=float,
@@ -239,7 +246,172 @@ def build_parser() -> argparse.ArgumentParser:
         dest="octree.points",
         help="also write the occupied voxel centres as occupied_voxels.ply / .pcd",
     )
-    return parser
+
+
+def _pose6(text: str) -> list[float]:
+    return [float(v) for v in text.replace(",", " ").split()]
+
+
+def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
+    s = p.add_argument_group("scans and poses")
+    if bag:
+        s.add_argument(
+            "--topic",
+            action="append",
+            dest="scans.topics",
+            help="scan topic (LaserScan/PointCloud2, repeatable) or one OccupancyGrid topic "
+            "(default: the only sensible one)",
+        )
+        s.add_argument(
+            "--start",
+            type=float,
+            dest="scans.start",
+            help="seconds from the bag's start, or absolute UNIX seconds",
+        )
+        s.add_argument("--end", type=float, dest="scans.end", help="as --start")
+        s.add_argument(
+            "--poses",
+            choices=("auto", "tf", "odom", "trajectory", "fixed"),
+            dest="scans.poses",
+            help="where scan poses come from (default auto: tf, else odometry)",
+        )
+        s.add_argument(
+            "--fixed-frame",
+            dest="scans.fixed_frame",
+            help="frame to build the world in (default: map if present, else odom)",
+        )
+        s.add_argument(
+            "--odom-topic", dest="scans.odom_topic", help="nav_msgs/Odometry topic (poses odom)"
+        )
+        s.add_argument(
+            "--trajectory",
+            dest="scans.trajectory",
+            help="TUM trajectory file of the robot base (t x y z qx qy qz qw)",
+        )
+        s.add_argument(
+            "--mount",
+            type=float,
+            nargs=6,
+            metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
+            dest="scans.mount",
+            help="sensor pose on the robot base (odometry/trajectory poses; default from "
+            "/tf_static, else identity)",
+        )
+        s.add_argument(
+            "--max-gap",
+            type=float,
+            dest="scans.max_gap",
+            help="longest tf/odometry gap, seconds, to interpolate across (default 1)",
+        )
+    else:
+        s.add_argument(
+            "--las-classes",
+            type=int,
+            nargs="+",
+            dest="scans.las_classes",
+            help="LAS/LAZ classes to keep, e.g. 2 for ground (default: all)",
+        )
+    s.add_argument(
+        "--pose",
+        type=float,
+        nargs=6,
+        metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
+        dest="scans.pose",
+        help="a stationary sensor's pose in the fixed frame (metres, radians)",
+    )
+    s.add_argument(
+        "--insert",
+        choices=("raycast", "endpoints"),
+        dest="scans.insert",
+        help="raycast: free space too (OctoMap's insertPointCloud); endpoints: hits only, fast "
+        "(default: raycast for bags, endpoints for cloud files)",
+    )
+
+
+def _bag_commands(sub: Any) -> None:
+    b = sub.add_parser(
+        "bag2world",
+        help="ROS1/ROS 2 bag or MCAP (LaserScan, PointCloud2 or a map) -> Gazebo world folder",
+        description="Read a bag with no ROS installed (ROS1 .bag, rosbag2 folder, .db3, .mcap), "
+        "pose every scan (tf, odometry, a TUM trajectory or one fixed pose), insert the scans "
+        "into the voxel octree (OctoMap's model) and write the same world folder as "
+        "octree2world, plus octree.bt. A bag with only a map topic goes the map2world way.",
+        epilog="examples:\n"
+        "  scan2terrain bag2world robot.bag -o site_world\n"
+        "  scan2terrain bag2world run/ -o out --topic /velodyne_points --insert endpoints "
+        "--grid height\n"
+        "  scan2terrain bag2world scans.bag -o out --pose 0 0 0.3 0 0 0 --resolution 0.05\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    b.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
+    _common(b)
+    _octree_options(b)
+    _scan_options(b, bag=True)
+    _progress_option(b)
+
+    c = sub.add_parser(
+        "cloud2world",
+        help="point-cloud files (PCD, PLY, XYZ, CSV, LAS/LAZ) -> Gazebo world folder",
+        description="Read point-cloud files (float64 kept until a local origin is subtracted), "
+        "insert them into the voxel octree (end points only by default; --insert raycast casts "
+        "rays from --pose, the cloud being in the sensor frame) and write the world folder.",
+        epilog="examples:\n"
+        "  scan2terrain cloud2world scan.pcd -o out --z-min 0.1 --z-max 1.5\n"
+        "  scan2terrain cloud2world site.laz -o terrain --las-classes 2 --grid height "
+        "--resolution 1\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    c.add_argument("clouds", type=Path, nargs="+", help="point-cloud file(s)")
+    _common(c)
+    _octree_options(c)
+    _scan_options(c, bag=False)
+
+    v = sub.add_parser(
+        "convert",
+        help="point-cloud file or bag -> one point-cloud file",
+        description="Convert between point-cloud formats (PCD, PLY, XYZ, CSV, LAS, LAZ), or merge "
+        "a bag's scans (hits only, posed in the fixed frame) into one cloud file.",
+        epilog="examples:\n"
+        "  scan2terrain convert scan.pcd scan.ply\n"
+        "  scan2terrain convert robot.bag merged.laz --topic /points\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    v.add_argument("source", type=Path, nargs="+", help="input cloud file(s) or bag")
+    v.add_argument("target", type=Path, help="output cloud file (format by extension)")
+    v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    v.add_argument("--config", type=Path, help="YAML config file; flags override it")
+    _scan_options(v, bag=True)
+    v.add_argument(
+        "--las-classes", type=int, nargs="+", dest="scans.las_classes", help="LAS classes to keep"
+    )
+    v.add_argument(
+        "--max-range", type=float, dest="octree.max_range", help="drop bag hits beyond (m)"
+    )
+    v.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
+    v.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+    n = sub.add_parser(
+        "inspect",
+        help="what a bag holds and what bag2world would use",
+        description="List a bag's topics, types, counts, duration and tf frames, and which "
+        "topics and poses bag2world would use and why.",
+        epilog="example:\n  scan2terrain inspect robot.bag\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    n.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
+    n.add_argument("--config", type=Path, help="YAML config file; flags override it")
+    _scan_options(n, bag=True)
+    n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
+    n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+
+def _progress_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -248,6 +420,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
+    import warnings
+
+    def show(message: Any, category: Any, *_: Any, **__: Any) -> None:
+        print(f"scan2terrain: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show
     try:
         return _run(args)
     except KeyboardInterrupt:
@@ -279,6 +457,8 @@ def _run(args: argparse.Namespace) -> int:
         k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
     }
     cfg = load_config(args.config, overrides)
+    if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
+        return _run_scans(args, cfg)
     if args.command == "map2world":
         result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
     elif args.command == "octree2world":
@@ -288,6 +468,61 @@ def _run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(report(result))
     return 0
+
+
+def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
+    from scan2terrain import ingest
+
+    if args.command == "inspect":
+        print(ingest.inspect_bag(args.bag, cfg))
+        return 0
+    if args.command == "convert":
+        text = ingest.convert(args.source, args.target, cfg, overwrite=args.overwrite)
+        if not args.quiet:
+            print(text)
+        return 0
+    if args.command == "cloud2world":
+        result = ingest.cloud2world(args.clouds, args.out, cfg, overwrite=args.overwrite)
+    else:
+        show = sys.stderr.isatty() if args.progress is None else args.progress
+        with ProgressBar(enabled=show and not args.quiet) as bar:
+            result = ingest.bag2world(
+                args.bag, args.out, cfg, overwrite=args.overwrite, progress=bar.update
+            )
+    if not args.quiet:
+        print(report(result))
+    return 0
+
+
+class ProgressBar:
+    """Scans/s, points/s and ETA on stderr (tqdm), updated at most a few times a second."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._bar: Any = None
+        self._last = 0
+
+    def __enter__(self) -> ProgressBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+    def update(self, counts: Any, total: int) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=total, unit="msg", file=sys.stderr, dynamic_ncols=True, mininterval=0.25
+            )
+        self._bar.update(counts.messages - self._last)
+        self._last = counts.messages
+        rate = self._bar.format_dict.get("rate") or 0.0
+        per_msg = counts.points / max(counts.inserted, 1)
+        self._bar.set_postfix_str(f"{rate * per_msg / 1e6:.2f} M points/s", refresh=False)
 
 
 def report(result: Any) -> str:
@@ -314,12 +549,14 @@ def report(result: Any) -> str:
                 "  Gazebo Classic:",
                 f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
                 "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
-                f"    a map point (x, y) is world (x - {ox:g}, y - {oy:g}).",
+                f"    a map point (x, y) is world (x {-ox:+g}, y {-oy:+g}).",
             ]
         if w.map_yaml is not None:
             lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
     if result.preview is not None:
         lines.append(f"  preview (original | filtered | difference): {result.preview}")
+    for note in getattr(result, "notes", []):
+        lines.append(f"  {note}")
     lines.append(f"  effective config: {result.config}")
     return "\n".join(lines)
 

@@ -17,6 +17,7 @@ from scan2terrain.errors import ConfigError
 FILTERS = ("none", "median", "majority", "paper", "thin_wall")
 UNKNOWN_POLICIES = ("free", "obstacle", "height")
 SIMULATORS = ("gz", "classic", "both")
+POSE_SOURCES = ("auto", "tf", "odom", "trajectory", "fixed")
 
 
 @dataclass
@@ -123,6 +124,43 @@ class OctreeConfig:
 
 
 @dataclass
+class ScansConfig:
+    """Scans from bags and cloud files (bag2world, cloud2world, convert)."""
+
+    #: Topics to read: LaserScan/PointCloud2 topics, or one OccupancyGrid topic; None picks
+    #: automatically (one sensible choice, else the choices are listed).
+    topics: list[str] | None = None
+    #: Time range: seconds from the bag's first message, or absolute UNIX seconds (>= 1e9).
+    start: float | None = None
+    end: float | None = None
+    #: auto (tf, else odometry) | tf | odom | trajectory | fixed
+    poses: str = "auto"
+    #: The frame the world is built in; None: 'map' if the tf tree has it, else 'odom'.
+    fixed_frame: str | None = None
+    #: Odometry topic (poses: odom); None picks the bag's only nav_msgs/Odometry topic.
+    odom_topic: str | None = None
+    #: TUM trajectory file (t x y z qx qy qz qw) of the robot base (poses: trajectory).
+    trajectory: str | None = None
+    #: Sensor pose on the robot base [x, y, z, roll, pitch, yaw] (odom / trajectory poses);
+    #: None: from /tf_static when it links the base to the sensor frame, else identity.
+    mount: list[float] | None = None
+    #: Pose [x, y, z, roll, pitch, yaw] of a stationary sensor in the fixed frame (poses: fixed).
+    pose: list[float] | None = None
+    #: raycast (free space too, as OctoMap's insertPointCloud) | endpoints (hits only, fast;
+    #: for clouds that are already registered).
+    insert: str = "raycast"
+    #: Longest gap (seconds) in tf or odometry that poses are interpolated across.
+    max_gap: float = 1.0
+    #: LAS/LAZ classes to keep (e.g. [2]: ground); None keeps every point.
+    las_classes: list[int] | None = None
+    #: Which message of an OccupancyGrid topic: -1 is the last, 0 the first.
+    map_message: int = -1
+    #: Cloud files: subtract a local origin (auto: when the points lie beyond 1 km of the
+    #: origin, e.g. UTM, the rounded centre of their bounding box) | none.
+    local_origin: str = "auto"
+
+
+@dataclass
 class Config:
     canvas: CanvasConfig = field(default_factory=CanvasConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -131,6 +169,7 @@ class Config:
     output: OutputConfig = field(default_factory=OutputConfig)
     image: ImageConfig = field(default_factory=ImageConfig)
     octree: OctreeConfig = field(default_factory=OctreeConfig)
+    scans: ScansConfig = field(default_factory=ScansConfig)
     #: Refuse images with more pixels than this (decompression bombs).
     max_pixels: int = 1 << 28
 
@@ -215,6 +254,24 @@ class Config:
         _check(o.fill in ("none", "nearest", "idw"), "octree.fill", o.fill, "none, nearest or idw")
         _check(o.fill_max_distance > 0, "octree.fill_max_distance", o.fill_max_distance, "> 0")
         _check(o.points in ("none", "ply", "pcd"), "octree.points", o.points, "none, ply or pcd")
+        sc = c.scans
+        _check(sc.poses in POSE_SOURCES, "scans.poses", sc.poses, f"one of {POSE_SOURCES}")
+        _check(
+            sc.insert in ("raycast", "endpoints"), "scans.insert", sc.insert, "raycast or endpoints"
+        )
+        for name in ("mount", "pose"):
+            v = getattr(sc, name)
+            _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
+        _check(sc.max_gap > 0, "scans.max_gap", sc.max_gap, "> 0 seconds")
+        _check(
+            sc.local_origin in ("auto", "none"), "scans.local_origin", sc.local_origin, "auto/none"
+        )
+        _check(
+            sc.start is None or sc.end is None or sc.start <= sc.end,
+            "scans.start",
+            sc.start,
+            "<= scans.end",
+        )
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -289,6 +346,14 @@ def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
             raise TypeError
         if "list[float]" in text:
             return [float(v) for v in value]
+        if "list[int]" in text:
+            if any(isinstance(v, bool) or float(v) != int(v) for v in value):
+                raise TypeError
+            return [int(v) for v in value]
+        if "list[str]" in text:
+            if isinstance(value, str):
+                raise TypeError
+            return [str(v) for v in value]
         if "int" in text:
             if isinstance(value, bool) or float(value) != int(value):
                 raise TypeError

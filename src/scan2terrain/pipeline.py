@@ -74,6 +74,7 @@ class Result:
     size_z: float = 0.0
     preview: Path | None = None
     config: Path | None = None
+    notes: list[str] = field(default_factory=list)  #: what was read and chosen, for the report
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -171,7 +172,7 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     """A map_server map (YAML + image) to a Gazebo world folder. See the module docstring."""
     from scan2terrain.readers import read_map_yaml
 
-    _refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite)
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
     return occupancy_world(grid.with_data(trinary), Path(yaml_path), out, cfg, overwrite=overwrite)
@@ -219,7 +220,7 @@ def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     from scan2terrain.octree.bt import bt_bytes, read_bt
     from scan2terrain.readers.octomap_scan import is_scan_file
 
-    _refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite)
     source = Path(source)
     extra: dict[str, bytes] = {}
     if is_scan_file(source):
@@ -350,7 +351,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     """Any image to a Gazebo world folder: luminance is height, white is ``terrain.height``."""
     from scan2terrain.readers import read_grey_image
 
-    _refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite)
     img = read_grey_image(image_path, max_pixels=cfg.max_pixels)
     values = np.ascontiguousarray(np.flipud(img.values))
     res = cfg.image.resolution
@@ -386,7 +387,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
 # --- writing ---------------------------------------------------------------------------------
 
 
-def _refuse_existing(out: Path, overwrite: bool) -> None:
+def refuse_existing(out: Path, overwrite: bool) -> None:
     # Checked before any work so a refused run costs nothing; OutputDir checks again.
     OutputDir.check_target(out, overwrite)
 

@@ -1,0 +1,314 @@
+"""The commands that start from sensor data: bag2world, cloud2world, convert, inspect.
+
+bag2world:   open bag -> plan (topics, fixed frame, pose source) -> tf/odometry pass ->
+             posed scans, streamed -> octree (ray cast, or end points only) -> voxels_world
+             (a map topic instead goes straight to occupancy_world, as map2world)
+cloud2world: read cloud files -> local origin -> octree -> voxels_world
+convert:     cloud file or bag -> one merged cloud file (hits only, fixed frame)
+inspect:     a bag's topics, types, counts, duration, tf frames, and the plan with its reasons
+
+Like pipeline.py, this module composes the stages and owns no algorithm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import InputError
+from scan2terrain.pipeline import Result, occupancy_world, refuse_existing, voxels_world
+from scan2terrain.types import OccupancyGrid, Pose2D, Transform
+
+if TYPE_CHECKING:
+    from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.readers.bag import Bag
+    from scan2terrain.readers.scans import BagPlan, PosedScan, ScanCounts
+
+#: Called after every scan: (counts so far, scans expected in total).
+Progress = Callable[["ScanCounts", int], None]
+#: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
+FAR = 1000.0
+#: map_saver's thresholds (percent) for an OccupancyGrid message: >= 65 occupied, <= 25 free.
+MAP_OCCUPIED_ABOVE, MAP_FREE_BELOW = 64.0, 26.0
+
+
+@dataclass(frozen=True)
+class Ingest:
+    """What went into the octree, for the report."""
+
+    scans: int
+    points: int
+    notes: tuple[str, ...]
+
+
+def new_tree(cfg: Config) -> VoxelOctree:
+    from scan2terrain.octree.tree import SensorModel, VoxelOctree
+
+    o = cfg.octree
+    return VoxelOctree(
+        o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
+    )
+
+
+# --- bags --------------------------------------------------------------------------------------
+
+
+def bag2world(
+    bags: Sequence[Path],
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> Result:
+    """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
+    from scan2terrain.octree.bt import bt_bytes
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.scans import map_message, occupancy_from_message, plan_bag
+
+    refuse_existing(out, overwrite)
+    with open_bag(list(bags)) as bag:
+        plan = plan_bag(bag, cfg.scans)
+        if plan.map_topic is not None:
+            msg, _ = map_message(bag, plan, cfg.scans.map_message)
+            try:
+                data, res, (x, y, yaw) = occupancy_from_message(msg)
+                grid = OccupancyGrid(data, res, Pose2D(x, y, yaw))
+            except ValueError as exc:
+                raise InputError(bag.path, f"{plan.map_topic}: {exc}") from None
+            from scan2terrain.grids import to_trinary
+
+            trinary = to_trinary(
+                grid.data, occupied_above=MAP_OCCUPIED_ABOVE, free_below=MAP_FREE_BELOW
+            )
+            result = occupancy_world(
+                grid.with_data(trinary), bag.path, out, cfg, overwrite=overwrite
+            )
+            result.notes = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
+            return result
+        tree, ingest = bag_octree(bag, cfg, plan, progress)
+    keys, occupied = tree.occupied_and_free()
+    extra = {"octree.bt": bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)}
+    result = voxels_world(
+        keys,
+        occupied,
+        tree.resolution,
+        source=bag.path,
+        out=out,
+        cfg=cfg,
+        overwrite=overwrite,
+        extra=extra,
+    )
+    result.notes = list(ingest.notes)
+    return result
+
+
+def bag_octree(
+    bag: Bag, cfg: Config, plan: BagPlan, progress: Progress | None = None
+) -> tuple[VoxelOctree, Ingest]:
+    """Every posed scan of the plan inserted into a new octree."""
+    from scan2terrain.readers.scans import ScanCounts, posed_scans
+
+    tree = new_tree(cfg)
+    counts = ScanCounts()
+    total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
+    endpoints = cfg.scans.insert == "endpoints"
+    for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
+        _insert(tree, scan, endpoints, bag.path)
+        counts.inserted += 1
+        counts.points += len(scan.points)
+        if progress is not None:
+            progress(counts, total)
+    if counts.inserted == 0:
+        why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
+        raise InputError(
+            bag.path,
+            f"none of {counts.messages} scan message(s) could be used "
+            f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
+        )
+    notes = [*plan.reasons, f"scans: {counts.inserted} inserted ({counts.points:,} points)"]
+    if counts.unposed:
+        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
+    if counts.empty:
+        notes.append(f"scans without a valid point, skipped: {counts.empty}")
+    if plan.tf is not None:
+        notes += [f"tf: {p}" for p in plan.tf.problems()]
+    return tree, Ingest(counts.inserted, counts.points, tuple(notes))
+
+
+def _insert(tree: VoxelOctree, scan: PosedScan, endpoints: bool, source: Path) -> None:
+    try:
+        if endpoints:
+            hits = scan.points
+            if scan.max_range > 0:  # a LaserScan's clear-only beams are no hits
+                d = np.linalg.norm(hits - scan.origin, axis=1)
+                hits = hits[d <= scan.max_range]
+            tree.insert_endpoints(hits)
+        else:
+            tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
+    except InputError as exc:
+        raise InputError(
+            source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: {exc.problem}"
+        ) from None
+
+
+def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
+    """A human report of a bag: topics, types, counts, duration, tf frames, and what bag2world
+    would use and why (or why it cannot)."""
+    from scan2terrain.readers.bag import TF_TYPES, open_bag
+    from scan2terrain.readers.scans import plan_bag, read_tf
+
+    with open_bag(list(bags)) as bag:
+        lines = [
+            f"{bag.path}",
+            f"  duration {bag.duration_s:.3f} s, {bag.message_count} messages, "
+            f"start {bag.start_ns / 1e9:.3f} (UNIX s)",
+            "  topics:",
+        ]
+        width = max((len(n) for n in bag.topics), default=5)
+        for name in sorted(bag.topics):
+            t = bag.topics[name]
+            lines.append(f"    {name:<{width}}  {t.count:>7}  {t.msgtype}")
+        for topic, reason in bag.skipped.items():
+            lines.append(f"  skipped: {topic}: {reason}")
+        if bag.topics_of_type(TF_TYPES):
+            tf = read_tf(bag, cfg.scans)
+            lines.append("  tf tree:")
+            for e in sorted(tf.edges(), key=lambda e: (e.parent, e.child)):
+                kind = "static" if e.static else f"{e.samples} samples"
+                lines.append(f"    {e.parent} -> {e.child} ({kind})")
+            lines += [f"  tf: {p}" for p in tf.problems()]
+        else:
+            lines.append("  tf tree: none (no /tf or /tf_static)")
+        try:
+            plan = plan_bag(bag, cfg.scans)
+        except InputError as exc:
+            lines.append(f"  bag2world would stop: {exc.problem}")
+        else:
+            lines.append("  bag2world would use:")
+            lines += [f"    {r}" for r in plan.reasons]
+    return "\n".join(lines)
+
+
+# --- cloud files -------------------------------------------------------------------------------
+
+
+def read_clouds(
+    files: Sequence[Path], cfg: Config
+) -> tuple[list[NDArray[np.float64]], NDArray[np.float64], list[str]]:
+    """Points of every file (float64), the local origin subtracted from them, and notes."""
+    from scan2terrain.readers.cloudfile import read_cloud
+
+    classes = cfg.scans.las_classes
+    clouds = [read_cloud(f, las_classes=classes) for f in files]
+    notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
+    origin = np.zeros(3)
+    if cfg.scans.local_origin == "auto":
+        lo = np.min([c.points.min(axis=0) for c in clouds], axis=0)
+        hi = np.max([c.points.max(axis=0) for c in clouds], axis=0)
+        if max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
+            origin = np.round((lo + hi) / 2)
+            notes.append(
+                "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(
+                    *origin
+                )
+            )
+    return [c.points - origin for c in clouds], origin, notes
+
+
+def cloud2world(
+    files: Sequence[Path], out: Path, cfg: Config, *, overwrite: bool = False
+) -> Result:
+    """Point-cloud files to a world folder: each file one insertion (end points only, or ray
+    cast from ``scans.pose`` when ``scans.insert`` is raycast: the cloud is then in the sensor
+    frame)."""
+    from scan2terrain.octree.bt import bt_bytes
+
+    refuse_existing(out, overwrite)
+    clouds, _, notes = read_clouds(files, cfg)
+    tree = new_tree(cfg)
+    sensor = _fixed_pose(cfg)
+    for path, pts in zip(files, clouds, strict=True):
+        try:
+            if cfg.scans.insert == "raycast":
+                tree.insert_scan(
+                    sensor.apply(pts), sensor.translation, max_range=cfg.octree.max_range
+                )
+            else:
+                tree.insert_endpoints(pts)
+        except InputError as exc:
+            raise InputError(path, exc.problem) from None
+    keys, occupied = tree.occupied_and_free()
+    extra = {"octree.bt": bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)}
+    source = Path(files[0])
+    result = voxels_world(
+        keys,
+        occupied,
+        tree.resolution,
+        source=source,
+        out=out,
+        cfg=cfg,
+        overwrite=overwrite,
+        extra=extra,
+    )
+    result.notes = notes
+    return result
+
+
+def _fixed_pose(cfg: Config) -> Transform:
+    from scan2terrain.readers.poses import mount
+
+    p = cfg.scans.pose or [0.0] * 6
+    return mount(*p[:3], roll=p[3], pitch=p[4], yaw=p[5])
+
+
+# --- convert -----------------------------------------------------------------------------------
+
+
+def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: bool = False) -> str:
+    """A cloud file, or a bag's scans (hits only, in the fixed frame), to one cloud file."""
+    from scan2terrain.exporters.pointcloud import write_points
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.cloudfile import SUFFIXES
+
+    target = Path(target)
+    if target.exists() and not overwrite:
+        from scan2terrain.errors import OutputError
+
+        raise OutputError(f"{target}: exists (use --overwrite to replace it)")
+    if all(Path(s).suffix.lower() in SUFFIXES for s in source):
+        clouds, _, notes = read_clouds(source, cfg)
+        points = np.concatenate(clouds)
+    else:
+        with open_bag(list(source)) as bag:
+            points, notes = _bag_hits(bag, cfg)
+    write_points(target, points)
+    return "\n".join([f"Wrote {target} ({len(points):,} points)", *(f"  {n}" for n in notes)])
+
+
+def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
+    from scan2terrain.readers.scans import ScanCounts, plan_bag, posed_scans
+
+    plan = plan_bag(bag, cfg.scans)
+    if plan.map_topic is not None:
+        raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to convert")
+    counts = ScanCounts()
+    parts = list(_hits(posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range)))
+    if not parts:
+        raise InputError(bag.path, f"no scan could be posed ({counts.first_unposed})")
+    return np.concatenate(parts), [*plan.reasons, f"scans: {len(parts)}"]
+
+
+def _hits(scans: Iterator[PosedScan]) -> Iterator[NDArray[np.float64]]:
+    for s in scans:
+        pts = s.points
+        if s.max_range > 0:
+            pts = pts[np.linalg.norm(pts - s.origin, axis=1) <= s.max_range]
+        if len(pts):
+            yield pts

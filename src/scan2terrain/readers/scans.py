@@ -1,0 +1,437 @@
+"""What a robot saw, posed: scans from a bag, each with its points and sensor origin in one fixed
+frame, ready for the octree.
+
+Two steps, both here because both need the bag's topics and tf tree:
+
+* :func:`plan_bag` decides what to read: the scan topics (``sensor_msgs/LaserScan`` and
+  ``sensor_msgs/PointCloud2``), or a ``nav_msgs/OccupancyGrid`` topic when the bag has no scans,
+  and where each scan's pose comes from. A choice is made automatically only when there is one
+  sensible choice; otherwise the error lists the choices and the option that picks one. Every
+  decision is recorded with its reason (``scan2terrain inspect`` prints them).
+* :func:`posed_scans` streams the scans. tf and odometry are read first in their own pass (they
+  are small), so a scan can be interpolated between the transforms around its stamp and memory
+  does not grow with the recording: scans are decoded in batches of :data:`BATCH` messages and
+  their poses looked up together (one vectorised lookup per batch).
+
+Poses, in the order a user expects (``scans.poses: auto`` tries the first two):
+
+1. tf: the sensor frame (the scan's ``header.frame_id``) in the fixed frame (``map`` if the tree
+   has it, else ``odom``, or the one given), interpolated at the scan's stamp;
+2. odometry: a ``nav_msgs/Odometry`` topic gives the robot base in ``odom``; the sensor mount comes
+   from ``/tf_static`` (base -> sensor) when it is there, else from ``scans.mount`` (identity if
+   not given, reported);
+3. trajectory: a TUM file of the base pose (the usual output of SLAM systems), plus the mount;
+4. fixed: one pose for a stationary sensor.
+
+A scan whose pose cannot be found (before the first transform, after the last, inside a gap longer
+than ``scans.max_gap``) is counted and reported with the reason of the first one, never inserted
+at identity.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import ScansConfig
+from scan2terrain.errors import InputError
+from scan2terrain.readers.bag import (
+    LASER_SCAN,
+    OCCUPANCY_GRID,
+    ODOMETRY,
+    POINT_CLOUD2,
+    TF_TYPES,
+    Bag,
+    resolve_time,
+)
+from scan2terrain.readers.laserscan import laserscan_points
+from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
+from scan2terrain.readers.poses import (
+    PoseTrack,
+    TfBuffer,
+    mount,
+    normalise_frame,
+    odometry_track,
+    read_tum,
+)
+from scan2terrain.types import Transform
+
+#: Scans decoded and posed together (one vectorised pose lookup per batch).
+BATCH = 64
+SCAN_TYPES = (LASER_SCAN, POINT_CLOUD2)
+
+
+@dataclass(frozen=True)
+class PosedScan:
+    """One scan in the fixed frame.
+
+    Attributes
+    ----------
+    points : float64 (N, 3)
+        Metres, fixed frame. For a LaserScan, clear-only beams lie beyond ``max_range``.
+    origin : float64 (3,)
+        The sensor's position, fixed frame.
+    max_range : float
+        Beams longer than this are cut there and only clear (-1: unlimited).
+    stamp_ns : int
+        The scan's header stamp (bag time if the stamp is zero).
+    topic : str
+    """
+
+    points: NDArray[np.float64]
+    origin: NDArray[np.float64]
+    max_range: float
+    stamp_ns: int
+    topic: str
+
+
+@dataclass
+class BagPlan:
+    """What :func:`posed_scans` will read and why."""
+
+    scan_topics: list[str] = field(default_factory=list)
+    map_topic: str | None = None
+    poses: str = ""  #: tf | odom | trajectory | fixed ('' for a map)
+    fixed_frame: str = ""
+    sensor_frames: dict[str, str] = field(default_factory=dict)  #: topic -> frame
+    odom_topic: str | None = None
+    start_ns: int | None = None
+    end_ns: int | None = None
+    reasons: list[str] = field(default_factory=list)
+    tf: TfBuffer | None = None  #: the bag's tf tree, read once
+
+
+@dataclass
+class ScanCounts:
+    """What happened to the scans of a run (for the report)."""
+
+    messages: int = 0
+    inserted: int = 0
+    points: int = 0
+    unposed: int = 0
+    empty: int = 0
+    first_unposed: str = ""
+
+
+def scan_topics(bag: Bag) -> list[str]:
+    return sorted(n for n, t in bag.topics.items() if t.msgtype in SCAN_TYPES and t.count)
+
+
+def plan_bag(bag: Bag, cfg: ScansConfig) -> BagPlan:
+    """Decide topics, fixed frame and pose source for ``bag`` (see the module docstring).
+
+    Raises
+    ------
+    InputError
+        No usable topic (the message lists what the bag has), several candidates and none
+        chosen (the message lists them), a chosen topic that is missing or of another type, or
+        no pose source.
+    """
+    plan = BagPlan(start_ns=resolve_time(cfg.start, bag), end_ns=resolve_time(cfg.end, bag))
+    path = bag.path
+    if cfg.topics:
+        for t in cfg.topics:
+            bag.require(t, (*SCAN_TYPES, OCCUPANCY_GRID))
+        maps = [t for t in cfg.topics if bag.topics[t].msgtype == OCCUPANCY_GRID]
+        if maps and len(cfg.topics) > 1:
+            raise InputError(path, "give either scan topics or one OccupancyGrid topic, not both")
+        if maps:
+            plan.map_topic = maps[0]
+        else:
+            plan.scan_topics = list(cfg.topics)
+        plan.reasons.append(f"topics {', '.join(cfg.topics)}: chosen (--topic)")
+    else:
+        scans = scan_topics(bag)
+        maps = sorted(n for n, t in bag.topics.items() if t.msgtype == OCCUPANCY_GRID and t.count)
+        if len(scans) == 1:
+            plan.scan_topics = scans
+            plan.reasons.append(f"topic {scans[0]}: the bag's only LaserScan/PointCloud2 topic")
+        elif len(scans) > 1:
+            listing = "; ".join(f"{n} ({_short(bag.topics[n].msgtype)})" for n in scans)
+            raise InputError(
+                path, f"several scan topics, choose with --topic (repeatable): {listing}"
+            )
+        elif len(maps) == 1:
+            plan.map_topic = maps[0]
+            plan.reasons.append(f"topic {maps[0]}: no scan topic; the bag's only OccupancyGrid")
+        elif len(maps) > 1:
+            raise InputError(
+                path,
+                f"no scan topic and several OccupancyGrid topics, choose with --topic: "
+                f"{', '.join(maps)}",
+            )
+        else:
+            raise InputError(
+                path,
+                "no usable topic (LaserScan, PointCloud2 or OccupancyGrid); the bag has: "
+                + bag.describe_topics(),
+            )
+    if plan.map_topic is not None:
+        bag.require_messages([plan.map_topic], plan.start_ns, plan.end_ns)
+        return plan
+    bag.require_messages(plan.scan_topics, plan.start_ns, plan.end_ns)
+    for t in plan.scan_topics:
+        frames = bag.frame_ids(t)
+        if len(frames) > 1:
+            raise InputError(path, f"{t} changes frame ({', '.join(sorted(frames))})")
+        plan.sensor_frames[t] = normalise_frame(next(iter(frames), ""))
+    _plan_poses(bag, cfg, plan)
+    return plan
+
+
+def _short(msgtype: str | None) -> str:
+    return (msgtype or "?").split("/")[-1]
+
+
+def _plan_poses(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
+    has_tf = bool(bag.topics_of_type(TF_TYPES))
+    odoms = bag.topics_of_type(ODOMETRY)
+    choice = cfg.poses
+    if choice == "auto":
+        if cfg.pose is not None:
+            choice = "fixed"
+        elif cfg.trajectory is not None:
+            choice = "trajectory"
+        elif has_tf and _tf_reaches(bag, cfg, plan):
+            choice = "tf"
+        elif odoms or cfg.odom_topic:
+            choice = "odom"
+        else:
+            why = "no /tf" if not has_tf else "the tf tree does not reach the sensor frame"
+            raise InputError(
+                bag.path,
+                f"no pose for the scans ({why}, no odometry topic): give --trajectory FILE (TUM) "
+                "or, for a stationary sensor, --pose X Y Z ROLL PITCH YAW",
+            )
+    plan.poses = choice
+    if choice == "tf":
+        if not has_tf:
+            raise InputError(bag.path, "--poses tf, but the bag has no tf topic")
+        if not plan.fixed_frame and not _tf_reaches(bag, cfg, plan):
+            tf = plan.tf or read_tf(bag, cfg)
+            fixed = normalise_frame(cfg.fixed_frame or "") or tf.fixed_frame() or "(none)"
+            frame = next(iter(plan.sensor_frames.values()), "")
+            raise InputError(
+                bag.path,
+                f"--poses tf: the tf tree does not link '{fixed}' to the sensor frame "
+                f"'{frame}' ({tf.why_not(fixed, frame, bag.start_ns)}); tf has frames "
+                f"{', '.join(sorted(tf.frames())) or 'none'}; choose one with --fixed-frame",
+            )
+        plan.reasons.append(
+            f"poses: tf, sensor frame(s) {', '.join(sorted(set(plan.sensor_frames.values())))} "
+            f"in fixed frame '{plan.fixed_frame}'"
+        )
+    elif choice == "odom":
+        plan.odom_topic = bag.pick_topic(ODOMETRY, cfg.odom_topic).name
+        plan.fixed_frame = "odom"
+        plan.reasons.append(f"poses: odometry on {plan.odom_topic} plus the sensor mount")
+    elif choice == "trajectory":
+        if cfg.trajectory is None:
+            raise InputError(bag.path, "--poses trajectory needs --trajectory FILE")
+        plan.fixed_frame = "trajectory"
+        plan.reasons.append(f"poses: TUM trajectory {cfg.trajectory} plus the sensor mount")
+    else:
+        if cfg.pose is None:
+            raise InputError(bag.path, "--poses fixed needs --pose X Y Z ROLL PITCH YAW")
+        plan.fixed_frame = "fixed"
+        plan.reasons.append(f"poses: one fixed sensor pose {cfg.pose}")
+
+
+def _tf_reaches(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> bool:
+    """Whether the bag's tf tree links a fixed frame to every sensor frame; sets the frame."""
+    if plan.tf is None:
+        plan.tf = read_tf(bag, cfg)
+    tf = plan.tf
+    fixed = normalise_frame(cfg.fixed_frame) if cfg.fixed_frame else tf.fixed_frame()
+    if fixed is None:
+        return False
+    frames = tf.frames()
+    ok = fixed in frames and all(
+        f in frames and _root(tf, f) == _root(tf, fixed) for f in plan.sensor_frames.values()
+    )
+    if ok:
+        plan.fixed_frame = fixed
+    return ok
+
+
+def _root(tf: TfBuffer, frame: str) -> str:
+    while (parent := tf.parent(frame)) is not None:
+        frame = parent
+    return frame
+
+
+def read_tf(bag: Bag, cfg: ScansConfig) -> TfBuffer:
+    """Every tf transform of the bag (/tf and /tf_static), in one pass."""
+    tf = TfBuffer(max_gap_ns=round(cfg.max_gap * 1e9))
+    topics = bag.topics_of_type(TF_TYPES)
+    if topics:
+        for topic, t_ns, msg in bag.messages(topics):
+            tf.add_message(msg, static="static" in topic, bag_time_ns=t_ns)
+    return tf
+
+
+def _stamp(msg: Any, bag_ns: int) -> int:
+    st = msg.header.stamp
+    ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    return ns if ns > 0 else bag_ns
+
+
+class _Poser:
+    """Poses of sensor frames at given times, from the plan's source."""
+
+    def __init__(self, bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
+        self.plan = plan
+        self.tf: TfBuffer | None = None
+        self.track: PoseTrack | None = None
+        self.fixed: Transform | None = None
+        self.mounts: dict[str, Transform] = {}
+        gap = round(cfg.max_gap * 1e9)
+        if plan.poses == "tf":
+            self.tf = plan.tf or read_tf(bag, cfg)
+            return
+        if plan.poses == "fixed":
+            assert cfg.pose is not None
+            self.fixed = mount(*cfg.pose[:3], roll=cfg.pose[3], pitch=cfg.pose[4], yaw=cfg.pose[5])
+            return
+        if plan.poses == "odom":
+            assert plan.odom_topic is not None
+            stamps, msgs = [], []
+            for _, t_ns, msg in bag.messages([plan.odom_topic]):
+                stamps.append(t_ns)
+                msgs.append(msg)
+            self.track = odometry_track(
+                np.asarray(stamps, dtype=np.int64), msgs, max_gap_ns=gap, source=str(bag.path)
+            )
+        else:
+            assert cfg.trajectory is not None
+            self.track = read_tum(Path(cfg.trajectory), max_gap_ns=gap)
+        base = self.track.child_frame_id or "base_link"
+        tf = plan.tf or (read_tf(bag, cfg) if bag.topics_of_type(TF_TYPES) else None)
+        for topic, frame in plan.sensor_frames.items():
+            if cfg.mount is not None:
+                m = cfg.mount
+                self.mounts[topic] = mount(*m[:3], roll=m[3], pitch=m[4], yaw=m[5])
+                continue
+            found = None
+            if tf is not None and frame in tf.frames() and base in tf.frames():
+                found = tf.lookup(base, frame, bag.start_ns)
+            if found is None:
+                found = Transform.identity()
+                plan.reasons.append(
+                    f"mount of {frame or topic} on {base}: not in /tf_static and no --mount: "
+                    "identity"
+                )
+            else:
+                plan.reasons.append(f"mount of {frame} on {base}: from tf")
+            self.mounts[topic] = found
+
+    def poses(
+        self, topic: str, stamps: NDArray[np.int64]
+    ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+        """(valid, rotations (K, 3, 3), translations (K, 3)) of the sensor of ``topic``."""
+        k = len(stamps)
+        if self.fixed is not None:
+            r = np.broadcast_to(self.fixed.rotation, (k, 3, 3))
+            return np.ones(k, bool), r, np.broadcast_to(self.fixed.translation, (k, 3))
+        if self.tf is not None:
+            return self.tf.lookup_many(
+                self.plan.fixed_frame, self.plan.sensor_frames[topic], stamps
+            )
+        assert self.track is not None
+        valid, r, t = self.track.at_many(stamps)
+        m = self.mounts[topic]
+        return valid, r @ m.rotation, np.einsum("kij,j->ki", r, m.translation) + t
+
+    def why_not(self, topic: str, stamp: int) -> str:
+        if self.tf is not None:
+            return self.tf.why_not(self.plan.fixed_frame, self.plan.sensor_frames[topic], stamp)
+        if self.track is not None:
+            return self.track.why_not(stamp)
+        return ""
+
+
+def posed_scans(
+    bag: Bag, cfg: ScansConfig, plan: BagPlan, counts: ScanCounts, *, max_range: float = -1.0
+) -> Iterator[PosedScan]:
+    """Stream the plan's scans in the fixed frame (see the module docstring); ``counts`` is
+    updated as they go. ``max_range`` (metres, < 0: none) also cuts PointCloud2 beams."""
+    poser = _Poser(bag, cfg, plan)
+    batch: list[tuple[str, int, Any]] = []
+    for item in bag.messages(plan.scan_topics, plan.start_ns, plan.end_ns):
+        batch.append(item)
+        if len(batch) == BATCH:
+            yield from _pose_batch(batch, poser, counts, max_range)
+            batch = []
+    if batch:
+        yield from _pose_batch(batch, poser, counts, max_range)
+
+
+def _pose_batch(
+    batch: list[tuple[str, int, Any]], poser: _Poser, counts: ScanCounts, max_range: float
+) -> Iterator[PosedScan]:
+    by_topic: dict[str, list[tuple[int, Any]]] = {}
+    for topic, t_ns, msg in batch:
+        by_topic.setdefault(topic, []).append((t_ns, msg))
+    out: list[PosedScan] = []
+    for topic, items in by_topic.items():
+        stamps = np.array([_stamp(m, t) for t, m in items], dtype=np.int64)
+        valid, rot, trans = poser.poses(topic, stamps)
+        for j, (_, msg) in enumerate(items):
+            counts.messages += 1
+            if not valid[j]:
+                counts.unposed += 1
+                if not counts.first_unposed:
+                    counts.first_unposed = f"{topic} at stamp {stamps[j] / 1e9:.3f} s: " + (
+                        poser.why_not(topic, int(stamps[j]))
+                    )
+                continue
+            if hasattr(msg, "ranges"):
+                pts, mr = laserscan_points(msg, max_range if max_range > 0 else None)
+            else:
+                pts, mr = pointcloud2_xyz(msg), max_range
+            if len(pts) == 0:
+                counts.empty += 1
+                continue
+            world = pts @ rot[j].T + trans[j]
+            out.append(
+                PosedScan(world, np.array(trans[j], dtype=np.float64), mr, int(stamps[j]), topic)
+            )
+    out.sort(key=lambda s: s.stamp_ns)
+    yield from out
+
+
+def map_message(bag: Bag, plan: BagPlan, index: int) -> tuple[Any, int]:
+    """The chosen OccupancyGrid message of the plan's map topic (``index`` -1: the last)."""
+    assert plan.map_topic is not None
+    chosen: tuple[Any, int] | None = None
+    n = 0
+    for _, t_ns, msg in bag.messages([plan.map_topic], plan.start_ns, plan.end_ns):
+        if index < 0 or n == index:
+            chosen = (msg, t_ns)
+        n += 1
+        if 0 <= index < n:
+            break
+    if chosen is None:
+        raise InputError(
+            bag.path, f"{plan.map_topic} has {n} message(s) in range, no message {index}"
+        )
+    return chosen
+
+
+def occupancy_from_message(msg: Any) -> tuple[NDArray[np.int8], float, tuple[float, float, float]]:
+    """nav_msgs/OccupancyGrid to (data int8 (H, W), resolution, origin (x, y, yaw))."""
+    info = msg.info
+    h, w = int(info.height), int(info.width)
+    data = np.asarray(msg.data, dtype=np.int8)
+    if h * w == 0 or data.size != h * w:
+        raise ValueError(f"OccupancyGrid of {w} x {h} cells holds {data.size} values")
+    q = info.origin.orientation
+    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    p = info.origin.position
+    return data.reshape(h, w), float(info.resolution), (float(p.x), float(p.y), yaw)
