@@ -321,7 +321,7 @@ def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
     )
     s.add_argument(
         "--insert",
-        choices=("raycast", "endpoints"),
+        choices=("auto", "raycast", "endpoints"),
         dest="scans.insert",
         help="raycast: free space too (OctoMap's insertPointCloud); endpoints: hits only, fast "
         "(default: raycast for bags, endpoints for cloud files)",

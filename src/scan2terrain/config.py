@@ -147,8 +147,8 @@ class ScansConfig:
     #: Pose [x, y, z, roll, pitch, yaw] of a stationary sensor in the fixed frame (poses: fixed).
     pose: list[float] | None = None
     #: raycast (free space too, as OctoMap's insertPointCloud) | endpoints (hits only, fast;
-    #: for clouds that are already registered).
-    insert: str = "raycast"
+    #: for clouds that are already registered) | auto (raycast for bags, endpoints for files).
+    insert: str = "auto"
     #: Longest gap (seconds) in tf or odometry that poses are interpolated across.
     max_gap: float = 1.0
     #: LAS/LAZ classes to keep (e.g. [2]: ground); None keeps every point.
@@ -257,7 +257,10 @@ class Config:
         sc = c.scans
         _check(sc.poses in POSE_SOURCES, "scans.poses", sc.poses, f"one of {POSE_SOURCES}")
         _check(
-            sc.insert in ("raycast", "endpoints"), "scans.insert", sc.insert, "raycast or endpoints"
+            sc.insert in ("auto", "raycast", "endpoints"),
+            "scans.insert",
+            sc.insert,
+            "auto, raycast or endpoints",
         )
         for name in ("mount", "pose"):
             v = getattr(sc, name)

@@ -200,16 +200,17 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
 
 
 def read_clouds(
-    files: Sequence[Path], cfg: Config
+    files: Sequence[Path], cfg: Config, *, local: bool = True
 ) -> tuple[list[NDArray[np.float64]], NDArray[np.float64], list[str]]:
-    """Points of every file (float64), the local origin subtracted from them, and notes."""
+    """Points of every file (float64), the local origin subtracted from them (``local`` and
+    ``scans.local_origin: auto``), and notes."""
     from scan2terrain.readers.cloudfile import read_cloud
 
     classes = cfg.scans.las_classes
     clouds = [read_cloud(f, las_classes=classes) for f in files]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
     origin = np.zeros(3)
-    if cfg.scans.local_origin == "auto":
+    if local and cfg.scans.local_origin == "auto":
         lo = np.min([c.points.min(axis=0) for c in clouds], axis=0)
         hi = np.max([c.points.max(axis=0) for c in clouds], axis=0)
         if max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
@@ -283,7 +284,7 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
 
         raise OutputError(f"{target}: exists (use --overwrite to replace it)")
     if all(Path(s).suffix.lower() in SUFFIXES for s in source):
-        clouds, _, notes = read_clouds(source, cfg)
+        clouds, _, notes = read_clouds(source, cfg, local=False)  # coordinates as they were
         points = np.concatenate(clouds)
     else:
         with open_bag(list(source)) as bag:
