@@ -189,15 +189,20 @@ def test_room_ten_scans_with_max_range_equal_octomap(octomap: ModuleType) -> Non
 
 
 def spy(monkeypatch: pytest.MonkeyPatch, name: str) -> list[tuple[Any, ...]]:
-    """Record the arguments of every call to kernel ``name`` made by tree.py."""
+    """Record the arguments of every call to kernel ``name`` made by tree.py (for the kernels
+    that also have a serial build, the calls of the parallel one)."""
     calls: list[tuple[Any, ...]] = []
-    kernel = getattr(K, name)
+    parallel = name in K.Kernels._fields
+    kernel = getattr(K.PARALLEL if parallel else K, name)
 
     def wrapper(*args: Any) -> Any:
         calls.append(args)
         return kernel(*args)
 
-    monkeypatch.setattr(K, name, wrapper)
+    if parallel:
+        monkeypatch.setattr(K, "PARALLEL", K.PARALLEL._replace(**{name: wrapper}))
+    else:
+        monkeypatch.setattr(K, name, wrapper)
     return calls
 
 

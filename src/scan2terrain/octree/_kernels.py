@@ -21,6 +21,8 @@ double, so the voxels visited are the ones OctoMap visits.
 from __future__ import annotations
 
 import math
+import types
+from typing import Any, NamedTuple
 
 import numba as nb
 import numpy as np
@@ -34,6 +36,12 @@ DONE, NEED_BLOCKS, NEED_TOUCHED, NEED_TABLE = 0, 1, 2, 3
 N_BLOCKS, N_TOUCHED, STAMP = 0, 1, 2
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
+
+# Index of a word's lowest set bit: (bit * De Bruijn constant) >> 58 is unique per bit.
+_DEBRUIJN_MUL = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN = np.zeros(64, dtype=np.int64)
+for _b in range(64):
+    _DEBRUIJN[((1 << _b) * 0x03F79D71B4CB0A89 % (1 << 64)) >> 58] = _b
 
 
 @nb.njit(**_JIT)
@@ -571,10 +579,11 @@ def apply_blocks(values, bits, touched, n_touched, model, all_hits):
                 continue
             if all_hits:
                 hit_word = any_word
-            for b in range(64):
-                bit = np.uint64(1) << np.uint64(b)
-                if not any_word & bit:
-                    continue
+            rest = any_word
+            while rest:  # each set bit, lowest first: cost follows the marks, not 64 per word
+                bit = rest & (~rest + np.uint64(1))
+                rest ^= bit
+                b = _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
                 local = w * 64 + b
                 v = values[cs, local]
                 if math.isnan(v):
@@ -742,3 +751,32 @@ def set_values(keys, logodds, values, block_xyz, table_keys, table_slots, counts
             table_insert(table_keys, table_slots, k, slot)
             values[slot, :] = np.nan
         values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)] = logodds[i]
+
+
+class Kernels(NamedTuple):
+    """The kernels that run on every core, as one set: :data:`PARALLEL`, or :data:`SERIAL` (the
+    same code compiled without threads) for small scans, where waking the threads costs more
+    than the work, and much more when other processes hold the cores."""
+
+    flag_blocks: Any
+    cast_parallel: Any
+    apply_blocks: Any
+    point_blocks: Any
+    find_point_slots: Any
+    mark_point_bits: Any
+
+
+def _serial(dispatcher: Any) -> Any:
+    """``dispatcher``'s Python function compiled without ``parallel`` (prange runs as range).
+    A copy under its own name, so numba's on-disk cache keeps the two versions apart."""
+    f = dispatcher.py_func
+    g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__)
+    g.__qualname__ = f.__qualname__ + "_serial"
+    g.__doc__ = f.__doc__
+    return nb.njit(**_JIT)(g)
+
+
+PARALLEL = Kernels(
+    flag_blocks, cast_parallel, apply_blocks, point_blocks, find_point_slots, mark_point_bits
+)
+SERIAL = Kernels(*(_serial(k) for k in PARALLEL))

@@ -23,6 +23,8 @@ from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
 TREE_DEPTH = 16
+#: Scans of fewer rays (end points: 16 points count as one ray) run on one core.
+PARALLEL_MIN_RAYS = 4096
 #: Largest per-scan dense block index (int32 entries): 64 MB.
 MAX_DENSE = 1 << 24
 #: Local voxel offsets inside a block, in the kernels' order: local = x | y << 3 | z << 6.
@@ -135,17 +137,18 @@ class VoxelOctree:
         self._next_scan()
         first_new = self.n_blocks
         dense, box = self._scan_box(o32, ends)
-        K.flag_blocks(o32, ends, kind, res, dense, box)
+        k = self._kernels(len(pts))
+        k.flag_blocks(o32, ends, kind, res, dense, box)
         self._until_done(lambda i: K.alloc_flagged(dense, box, i, *self._storage()))
         self._until_done(lambda i: K.mark_hits(ends, kind, res, dense, box, i, *self._storage()))
-        deferred = K.cast_parallel(
-            o32, ends, kind, res, self._planes(), dense, box, *self._storage()
+        deferred = k.cast_parallel(
+            o32, ends, kind, res, self._planes(k), dense, box, *self._storage()
         )
         self._until_done(
             lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
         )
         self._fresh_blocks(first_new)
-        hits, misses = self._apply()
+        hits, misses = self._apply(k)
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
 
     def _scan_box(
@@ -172,12 +175,13 @@ class VoxelOctree:
         stats = np.zeros(3, dtype=np.int64)
         self._next_scan()
         first_new = self.n_blocks
-        bk, local = K.point_blocks(pts, self.resolution)
-        slots = K.find_point_slots(bk, self._table_keys, self._table_slots)
+        k = self._kernels(len(pts) // 16)  # a point is far less work than a ray
+        bk, local = k.point_blocks(pts, self.resolution)
+        slots = k.find_point_slots(bk, self._table_keys, self._table_slots)
         self._until_done(lambda i: K.settle_points(bk, slots, i, *self._storage(), stats))
-        K.mark_point_bits(slots, local, self._planes(), self._bits)
+        k.mark_point_bits(slots, local, self._planes(k), self._bits)
         self._fresh_blocks(first_new)
-        hits, misses = self._apply(all_hits=True)
+        hits, misses = self._apply(k, all_hits=True)
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
 
     def _storage(self) -> tuple[NDArray[Any], ...]:
@@ -209,12 +213,19 @@ class VoxelOctree:
         """Blocks allocated since ``first`` start with every voxel unknown (NaN)."""
         self._values[first : self.n_blocks] = np.nan
 
-    def _planes(self) -> int:
-        """Bit planes the parallel kernels may use: one per numba thread, as many as exist."""
+    @staticmethod
+    def _kernels(rays: int) -> K.Kernels:
+        """Threads pay from a few thousand rays on; below, the serial build of the kernels."""
+        return K.PARALLEL if rays >= PARALLEL_MIN_RAYS else K.SERIAL
+
+    def _planes(self, k: K.Kernels) -> int:
+        """Bit planes the kernels may use: one per numba thread (one when serial)."""
+        if k is K.SERIAL:
+            return 1
         return min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
 
-    def _apply(self, *, all_hits: bool = False) -> tuple[int, int]:
-        hits, misses = K.apply_blocks(
+    def _apply(self, k: K.Kernels, *, all_hits: bool = False) -> tuple[int, int]:
+        hits, misses = k.apply_blocks(
             self._values,
             self._bits,
             self._touched,
