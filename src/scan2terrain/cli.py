@@ -425,7 +425,9 @@ def main(argv: list[str] | None = None) -> int:
     def show(message: Any, category: Any, *_: Any, **__: Any) -> None:
         print(f"scan2terrain: warning: {message}", file=sys.stderr)
 
-    warnings.showwarning = show
+    # Restored on return: main() is also called in-process (tests, scripts), and the hook
+    # must not outlive the command.
+    saved, warnings.showwarning = warnings.showwarning, show
     try:
         return _run(args)
     except KeyboardInterrupt:
@@ -447,6 +449,8 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+    finally:
+        warnings.showwarning = saved
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -486,8 +490,9 @@ def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
     else:
         show = sys.stderr.isatty() if args.progress is None else args.progress
         with ProgressBar(enabled=show and not args.quiet) as bar:
+            progress = bar.update if bar.enabled else None  # no bar: no counting pass
             result = ingest.bag2world(
-                args.bag, args.out, cfg, overwrite=args.overwrite, progress=bar.update
+                args.bag, args.out, cfg, overwrite=args.overwrite, progress=progress
             )
     if not args.quiet:
         print(report(result))

@@ -34,6 +34,8 @@ if TYPE_CHECKING:
 Progress = Callable[["ScanCounts", int], None]
 #: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
 FAR = 1000.0
+#: The octree's keys reach this many voxels either side of the origin (OctoMap's depth 16).
+KEY_RANGE = 32768
 #: map_saver's thresholds (percent) for an OccupancyGrid message: >= 65 occupied, <= 25 free.
 MAP_OCCUPIED_ABOVE, MAP_FREE_BELOW = 64.0, 26.0
 
@@ -117,7 +119,10 @@ def bag_octree(
 
     tree = new_tree(cfg)
     counts = ScanCounts()
-    total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
+    # With a time range, counting reads every scan message once more: only for a progress bar.
+    total = 0
+    if progress is not None:
+        total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
     endpoints = cfg.scans.insert == "endpoints"
     for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
         _insert(tree, scan, endpoints, bag.path)
@@ -235,17 +240,33 @@ def cloud2world(
     clouds, _, notes = read_clouds(files, cfg)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
+    outside: dict[Path, int] = {}
     for path, pts in zip(files, clouds, strict=True):
         try:
             if cfg.scans.insert == "raycast":
-                tree.insert_scan(
+                stats = tree.insert_scan(
                     sensor.apply(pts), sensor.translation, max_range=cfg.octree.max_range
                 )
             else:
-                tree.insert_endpoints(pts)
+                stats = tree.insert_endpoints(pts)
         except InputError as exc:
             raise InputError(path, exc.problem) from None
+        if stats.out_of_range:
+            outside[Path(path)] = stats.out_of_range
     keys, occupied = tree.occupied_and_free()
+    if outside:  # the octree drops them silently; without this the error would be "no voxel"
+        path, n = next(iter(outside.items()))
+        res = tree.resolution
+        span = f"outside the octree's key range (+-{KEY_RANGE * res:g} m at {res:g} m)"
+        if len(keys) == 0:
+            raise InputError(
+                path,
+                f"all points lie {span}: keep scans.local_origin: auto, or use a coarser "
+                "--resolution",
+            )
+        notes.append(
+            f"{sum(outside.values()):,} point(s) {span} dropped, e.g. {n:,} of {path.name}"
+        )
     extra = {"octree.bt": bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)}
     source = Path(files[0])
     result = voxels_world(

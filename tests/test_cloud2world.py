@@ -1,0 +1,210 @@
+"""cloud2world acceptance (issue 4): point-cloud files in, worlds out.
+
+* Twins (the same points in two formats) give identical outputs: PCD/PLY, LAS/LAZ.
+* Ground-classified LAZ gives terrain at the heights the points say, through Gazebo's loader.
+* Clouds far from the origin (UTM) get a local origin instead of leaving the octree's key range.
+* Bad input: one line, exit 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import laspy  # type: ignore[import-untyped]
+import numpy as np
+import pytest
+from PIL import Image
+
+from scan2terrain.cli import main
+from tests.conftest import FIXTURES
+from tests.gazebo_harness import probe_world, terrain_height
+
+CLOUDS = FIXTURES / "clouds"
+HDL_PCD = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+HDL_PLY = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/target.ply"
+LAS = CLOUDS / "pc_las_simple_twin/simple.las"
+LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
+AUTZEN = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
+KEY_OFFSET = 32768
+
+
+def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def heightmap(out: Path) -> np.ndarray:
+    """The gz model's heightmap pixels."""
+    (png,) = [
+        p
+        for p in (out / "models").glob("*/materials/textures/heightmap.png")
+        if not p.parent.parent.parent.name.endswith("_classic")
+    ]
+    with Image.open(png) as im:
+        return np.asarray(im)
+
+
+def local_origin(stdout: str) -> np.ndarray:
+    found = re.search(r"local origin \((-?\d+), (-?\d+), (-?\d+)\) subtracted", stdout)
+    assert found, stdout
+    return np.array([float(v) for v in found.groups()])
+
+
+# --- twins -------------------------------------------------------------------------------------
+
+
+TWINS = {
+    # One HDL-32 frame, ground at about -1.9 m: the band keeps what stands on it.
+    "hdl32-pcd-ply": (
+        HDL_PCD,
+        HDL_PLY,
+        ["--resolution", "0.2", "--z-min", "-1.5", "--z-max", "1.5"],
+    ),
+    # 1,065 points over 3.4 x 4.6 km (feet): sparse, so no filter (a median would erase them).
+    "las-laz": (LAS, LAZ, ["--resolution", "20", "--grid", "height", "--no-filter"]),
+}
+
+
+@pytest.mark.parametrize("case", list(TWINS))
+def test_twin_files_give_identical_grids(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    first, second, options = TWINS[case]
+    for src, name in ((first, "a"), (second, "b")):
+        code, stdout, err = run(capsys, "cloud2world", src, "-o", tmp_path / name, *options)
+        assert code == 0, err
+        assert f"{src.name}: " in stdout
+    a, b = tmp_path / "a", tmp_path / "b"
+    pixels = heightmap(a)
+    np.testing.assert_array_equal(pixels, heightmap(b))
+    levels = len(np.unique(pixels))
+    assert levels > 2 if "--grid" in options else levels == 2  # not a flat canvas
+    assert (a / "octree.bt").read_bytes() == (b / "octree.bt").read_bytes()
+    if "--grid" not in options:  # occupancy grids also write the map
+        assert (a / "map/map.pgm").read_bytes() == (b / "map/map.pgm").read_bytes()
+        with Image.open(a / "map/map.pgm") as im:
+            px = np.asarray(im)
+        assert (px == 0).sum() > 500 and (px == 254).sum() == 0  # end points: no free space
+
+
+# --- terrain from ground points ----------------------------------------------------------------
+
+
+def test_laz_ground_class_gives_the_terrain_the_points_say(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Autzen (real airborne lidar), class 2 only, 2.5D at 2 ft (the file's unit): at every cell
+    centre where it has ground points, Gazebo's terrain is at the highest ground voxel centre,
+    within one grey level of the 8-bit heightmap."""
+    res = 2.0
+    out = tmp_path / "w"
+    code, stdout, err = run(
+        capsys,
+        "cloud2world",
+        AUTZEN,
+        "-o",
+        out,
+        "--las-classes",
+        "2",
+        "--grid",
+        "height",
+        "--resolution",
+        res,
+        "--no-filter",
+        "--simulator",
+        "gz",
+    )
+    assert code == 0, err
+    las = laspy.read(AUTZEN)
+    ground = np.column_stack([las.x, las.y, las.z])[np.asarray(las.classification) == 2]
+    assert f"{len(ground):,} points" in stdout and len(ground) < len(las.points)
+    origin = local_origin(stdout)
+    np.testing.assert_array_equal(origin, np.round((ground.min(0) + ground.max(0)) / 2))
+
+    # The expected 2.5D grid, from the points alone: keys as OctoMap computes them (float32).
+    keys = np.floor((ground - origin).astype(np.float32) / np.float32(res)).astype(np.int64)
+    cols, inverse = np.unique(keys[:, :2], axis=0, return_inverse=True)
+    top = np.full(len(cols), np.iinfo(np.int64).min)
+    np.maximum.at(top, inverse.reshape(-1), keys[:, 2])
+    want = (top + 0.5) * res
+    x, y = (cols[:, 0] + 0.5) * res, (cols[:, 1] + 0.5) * res
+
+    (world,) = out.glob("world_gz.sdf")
+    _, probes = probe_world(world, [out / "models"], tmp_path / "probe")
+    (col,) = [p for p in probes if p.kind == "collision"]
+    got = terrain_height(col, x, y, "gz")
+    level = col.size[2] / 255
+    close = np.abs(got - want) <= 0.5 * level + 1e-6
+    print(
+        f"\nautzen ground: {len(cols)} columns, {close.mean():.4%} within half a grey level "
+        f"({level:.3f} ft), heights {want.min():.1f} .. {want.max():.1f} ft"
+    )
+    assert close.mean() >= 0.995
+    assert want.max() - want.min() > 10  # real relief, not a flat plate
+    assert col.size[2] == pytest.approx(want.max() - want.min(), abs=1e-6)
+
+
+def test_far_cloud_gets_a_local_origin(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A UTM-like cloud (5,000 km north) works: the note gives the subtracted origin and the
+    world is the cloud minus it. Without the local origin, the error says why."""
+    g = np.mgrid[0:20:0.25, 0:20:0.25].reshape(2, -1).T + 0.125
+    box = (np.abs(g[:, 0] - 10) < 2) & (np.abs(g[:, 1] - 10) < 2)
+    pts = np.column_stack([g[:, 0] + 500_000.0, g[:, 1] + 5_000_000.0, 100.0 + box * 1.0])
+    src = tmp_path / "utm.xyz"
+    np.savetxt(src, pts, fmt="%.3f")
+    options = ["--grid", "height", "--resolution", "0.5", "--no-filter", "--simulator", "gz"]
+    out = tmp_path / "w"
+    code, stdout, err = run(capsys, "cloud2world", src, "-o", out, *options)
+    assert code == 0, err
+    np.testing.assert_array_equal(local_origin(stdout), [500_010, 5_000_010, 100])
+    assert "world = cloud - origin" in stdout
+    _, probes = probe_world(out / "world_gz.sdf", [out / "models"], tmp_path / "probe")
+    (col,) = [p for p in probes if p.kind == "collision"]
+    # ground voxels centred at 0.25 m, the box top at 1.25 m, the box around the local origin
+    got = terrain_height(col, np.array([0.25, -0.25, 5.25, -7.75]), np.array([0.25] * 4), "gz")
+    np.testing.assert_allclose(got, [1.25, 1.25, 0.25, 0.25], atol=1e-6)
+
+    (tmp_path / "none.yaml").write_text("scans:\n  local_origin: none\n")
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    code, stdout, err = run(
+        capsys, "cloud2world", src, "-o", outs / "w", *options, "--config", tmp_path / "none.yaml"
+    )
+    assert code == 2 and stdout == ""
+    assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {src}: ")
+    assert "outside the octree's key range" in err
+    assert list(outs.iterdir()) == []
+
+
+# --- bad input ---------------------------------------------------------------------------------
+
+
+def _write_no_finite(tmp: Path) -> Path:
+    p = tmp / "nan.pcd"
+    p.write_text(
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\n"
+        "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\nnan nan nan\nnan 1 2\n1 inf 2\n"
+    )
+    return p
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [
+        ("no finite point", "no finite point in the cloud"),
+        ("missing file", "point-cloud file not found"),
+    ],
+)
+def test_bad_cloud_one_line_exit_2_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str, message: str
+) -> None:
+    src = _write_no_finite(tmp_path) if case == "no finite point" else tmp_path / "gone.ply"
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    code, stdout, err = run(capsys, "cloud2world", src, "-o", outs / "w")
+    assert code == 2 and stdout == ""
+    assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {src}: ")
+    assert message in err
+    assert list(outs.iterdir()) == []  # no folder, no hidden temporary folder
