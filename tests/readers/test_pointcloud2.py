@@ -236,6 +236,19 @@ def test_all_points_non_finite() -> None:
     assert pointcloud2_xyz(encode(fields, height=2, width=2, point_step=12)).shape == (0, 3)
 
 
+def test_huge_finite_float64_points_are_kept() -> None:
+    # Their sum overflows to inf, so the quick all-finite check fails; none may be dropped
+    # (and no overflow warning escapes). The point with +inf and -inf goes.
+    fields = xyz_fields(8, 4)
+    fields[0].values[:] = 1.5e308
+    fields[1].values[2] = np.inf
+    fields[2].values[2] = -np.inf
+    msg = encode(fields, height=2, width=2, point_step=24)
+    got = pointcloud2_xyz(msg)
+    assert np.array_equal(got, reference_xyz(msg))
+    assert got.shape == (3, 3)
+
+
 def good() -> Msg:
     return encode(xyz_fields(7, 4), height=2, width=2, point_step=12)
 

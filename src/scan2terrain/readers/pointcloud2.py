@@ -65,7 +65,17 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
     xyz = np.empty((records.size, 3))
     for axis, name in enumerate(_XYZ):  # three strided gathers, not a loop over points
         xyz[:, axis] = records[name].reshape(-1)
-    return xyz[np.isfinite(xyz).all(axis=1)]
+    # Hot path (every scan of a bag): numpy's per-row reductions over 3 columns (`all(axis=1)`)
+    # and 2-D boolean indexing each cost ~10x a flat pass. A sum is finite only if every term
+    # is (inf and NaN never turn finite), so one flat sum clears a dense cloud without a mask
+    # or a copy; a non-finite sum (a NaN point, or float64 values overflowing) takes the exact
+    # path.
+    with np.errstate(over="ignore", invalid="ignore"):  # inf - inf, huge float64: expected
+        total = xyz.sum()
+    if np.isfinite(total):
+        return xyz
+    finite = np.isfinite(xyz)
+    return np.compress(finite[:, 0] & finite[:, 1] & finite[:, 2], xyz, axis=0)
 
 
 def pointcloud2_fields(msg: Any, names: Sequence[str]) -> dict[str, NDArray[Any]]:
