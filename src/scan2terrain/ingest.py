@@ -123,13 +123,18 @@ def bag_octree(
     total = 0
     if progress is not None:
         total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
-    endpoints = cfg.scans.insert == "endpoints"
+    batch = EndpointBatch(tree) if cfg.scans.insert == "endpoints" else None
     for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
-        _insert(tree, scan, endpoints, bag.path)
+        if batch is not None:
+            batch.add(_hits_of(scan))
+        else:
+            _insert(tree, scan, bag.path)
         counts.inserted += 1
         counts.points += len(scan.points)
         if progress is not None:
             progress(counts, total)
+    if batch is not None:
+        batch.flush()
     if counts.inserted == 0:
         why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
         raise InputError(
@@ -147,20 +152,55 @@ def bag_octree(
     return tree, Ingest(counts.inserted, counts.points, tuple(notes))
 
 
-def _insert(tree: VoxelOctree, scan: PosedScan, endpoints: bool, source: Path) -> None:
+def _insert(tree: VoxelOctree, scan: PosedScan, source: Path) -> None:
     try:
-        if endpoints:
-            hits = scan.points
-            if scan.max_range > 0:  # a LaserScan's clear-only beams are no hits
-                d = np.linalg.norm(hits - scan.origin, axis=1)
-                hits = hits[d <= scan.max_range]
-            tree.insert_endpoints(hits)
-        else:
-            tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
+        tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
     except InputError as exc:
         raise InputError(
             source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: {exc.problem}"
         ) from None
+
+
+def _hits_of(scan: PosedScan) -> NDArray[np.float64]:
+    """A scan's hits: its points, less a LaserScan's clear-only beams (beyond max range)."""
+    if scan.max_range <= 0:
+        return scan.points
+    rel = scan.points - scan.origin
+    d2 = np.einsum("ij,ij->i", rel, rel)
+    hits: NDArray[np.float64] = scan.points[d2 <= scan.max_range**2]
+    return hits
+
+
+class EndpointBatch:
+    """End points of many scans inserted together, ``CAPACITY`` points at a time.
+
+    End points only ever add hits, so which voxels are occupied does not depend on how scans are
+    grouped: a batch gives the same maximum-likelihood map (and ``.bt``, grids, worlds) as one
+    insertion per scan, with fewer, larger calls (the octree's threads pay from ~65k points).
+    Log-odds differ: a voxel gets one hit per batch, not one per scan.
+    """
+
+    CAPACITY = 1 << 20
+
+    def __init__(self, tree: VoxelOctree) -> None:
+        self.tree = tree
+        self._buf = np.empty((self.CAPACITY, 3), dtype=np.float32)
+        self._n = 0
+
+    def add(self, points: NDArray[np.floating]) -> None:
+        n = len(points)
+        if self._n + n > self.CAPACITY:
+            self.flush()
+        if n > self.CAPACITY:
+            self.tree.insert_endpoints(points)
+            return
+        self._buf[self._n : self._n + n] = points
+        self._n += n
+
+    def flush(self) -> None:
+        if self._n:
+            self.tree.insert_endpoints(self._buf[: self._n])
+            self._n = 0
 
 
 def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
@@ -329,8 +369,6 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
 
 def _hits(scans: Iterator[PosedScan]) -> Iterator[NDArray[np.float64]]:
     for s in scans:
-        pts = s.points
-        if s.max_range > 0:
-            pts = pts[np.linalg.norm(pts - s.origin, axis=1) <= s.max_range]
+        pts = _hits_of(s)
         if len(pts):
             yield pts

@@ -398,7 +398,8 @@ def _pose_batch(
             if len(pts) == 0:
                 counts.empty += 1
                 continue
-            world = pts @ rot[j].T + trans[j]
+            world = pts @ np.ascontiguousarray(rot[j].T)  # a transposed view is a slow matmul
+            world += trans[j]
             out.append(
                 PosedScan(world, np.array(trans[j], dtype=np.float64), mr, int(stamps[j]), topic)
             )
