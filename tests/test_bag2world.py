@@ -680,11 +680,6 @@ def test_bad_bag_one_line_exit_2_nothing_written(
     assert list(outs.iterdir()) == []  # no folder, not even a hidden temporary one
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="readers/bag.py hands a rosbag2 folder named *.bag to rosbags, which reads every "
-    "*.bag path as a ROS1 file ('Is a directory')",
-)
 def test_rosbag2_folder_named_dot_bag_opens(tmp_path: Path) -> None:
     room = synthetic_room("tf", n_scans=5)
     bag = room.write(tmp_path / "run.bag", "mcap")  # ros2 bag record -o run.bag does this

@@ -318,6 +318,11 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
         path = path.parent
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
+            if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
+                tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scan2terrain-")))
+                link = tmp / path.stem
+                link.symlink_to(path.resolve(), target_is_directory=True)
+                return _Source((path,), (link,))
             return _Source((path,), (path,))
         bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
         if bags:
