@@ -537,14 +537,15 @@ def synthetic_room(
     segments = np.array(_box(*ROOM) + _box(*BOX), dtype=np.float64)
     heights = np.array([WALL_HEIGHT] * 4 + [BOX_HEIGHT] * 4)
 
-    # Trajectory: an ellipse around (-1, 0), radii 2.5 x 2, heading along the tangent.
+    # Trajectory: an ellipse around (-0.5, 0.5), radii 4 x 2.5, heading along the tangent; it
+    # passes right of the box, so every wall face is seen from somewhere.
     period_ns = round(1e9 / rate_hz)
     stamps = start_ns + np.arange(n_scans, dtype=np.int64) * period_ns
     phase = np.linspace(0.0, 2 * np.pi, n_scans, endpoint=False)
 
     def base_at(ph: NDArray[np.float64]) -> NDArray[np.float64]:
-        x, y = -1.0 + 2.5 * np.cos(ph), 2.0 * np.sin(ph)
-        yaw = np.arctan2(2.0 * np.cos(ph), -2.5 * np.sin(ph))
+        x, y = -0.5 + 4.0 * np.cos(ph), 0.5 + 2.5 * np.sin(ph)
+        yaw = np.arctan2(2.5 * np.cos(ph), -4.0 * np.sin(ph))
         return np.stack([x, y, yaw], axis=-1)
 
     base = base_at(phase)

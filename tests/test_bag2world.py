@@ -162,6 +162,7 @@ def score_map(out: Path, room: SyntheticRoom, z_band: tuple[float, float] | None
 def assert_room(score: MapScore, label: str) -> None:
     print(f"\n{label}: {score}")
     assert score.iou >= MIN_IOU, f"{label}: {score}"
+    assert score.iou_all_walls >= MIN_IOU, f"{label}: {score}"  # the path sees every wall face
     assert score.free_agreement >= MIN_FREE_AGREEMENT, f"{label}: {score}"
     assert score.free_known >= MIN_FREE_KNOWN, f"{label}: {score}"
 
