@@ -3,7 +3,10 @@
 The C++ program ``tests/gazebo/heightmap_probe.cpp`` parses a world strictly with
 ``sdf::Root::Load`` and rebuilds every collision heightmap the way gz-physics' dartsim
 plugin does (``ImageHeightmap::FillHeightMap``). This module compiles it once per
-source revision, runs it, and turns its JSON into :class:`HeightmapProbe` objects.
+source revision, runs it, and turns its JSON into :class:`HeightmapProbe` objects
+(:func:`probe_world`), or, for worlds of walls, :class:`ShapeProbe` objects for every other
+geometry: boxes, planes, polylines, and meshes as gz-common's mesh loader reads them
+(:func:`probe_shapes`).
 
 :func:`terrain_height` then answers "how high is the ground at world (x, y)?" as each
 simulator lays the field out. The placement rules, with the upstream files they come
@@ -94,6 +97,37 @@ class HeightmapProbe:
     max_elevation_fallback: bool | None = None
     heights_file: Path | None = None
     heights: np.ndarray | None = field(default=None, repr=False)
+
+
+@dataclass
+class ShapeProbe:
+    """One non-heightmap ``<geometry>`` of a collision or visual, as SDFormat 12 parsed it.
+
+    ``pose`` is the collision/visual frame in the WORLD frame ``(x, y, z, roll, pitch, yaw)``.
+    ``type`` is ``box`` (``size`` x, y, z), ``plane`` (``size`` x, y; ``normal``), ``mesh``
+    (``uri``, resolved ``path``, ``scale``; ``triangles`` (T, 3, 3) float64 in the mesh frame as
+    gz-common 4's ``MeshManager::Load`` returns them, ``mesh_min``/``mesh_max``), ``polyline``
+    (``polylines``: one ``(height, points (N, 2))`` per ``<polyline>`` element of the geometry,
+    read from the element tree: SDFormat 12.3 has no Polyline class) or ``other``.
+    """
+
+    model: str
+    link: str
+    kind: Literal["collision", "visual"]
+    name: str
+    pose: tuple[float, float, float, float, float, float]
+    pose_method: str
+    type: str
+    size: tuple[float, ...] | None = None
+    normal: tuple[float, float, float] | None = None
+    uri: str | None = None
+    path: Path | None = None
+    scale: tuple[float, float, float] | None = None
+    polylines: list[tuple[float, np.ndarray]] = field(default_factory=list, repr=False)
+    mesh_loaded: bool | None = None
+    mesh_min: tuple[float, float, float] | None = None
+    mesh_max: tuple[float, float, float] | None = None
+    triangles: np.ndarray | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------- build
@@ -212,6 +246,53 @@ def probe_world(world: Path, model_dirs: list[Path], tmp: Path) -> tuple[str, li
     ``probe.sdf_original_version``. Raises :class:`SdfParseError` when SDFormat rejects
     the file, :class:`ProbeError` when an image cannot be resolved or loaded.
     """
+    doc = _run_probe(world, model_dirs, tmp)
+    original = str(doc.get("sdf_original_version", ""))
+    return str(doc["sdf_version"]), [_to_probe(e, original) for e in doc["heightmaps"]]
+
+
+def probe_shapes(world: Path, model_dirs: list[Path], tmp: Path) -> tuple[str, list[ShapeProbe]]:
+    """Parse ``world`` strictly with SDFormat 12 and return its non-heightmap geometries.
+
+    As :func:`probe_world` (same strict parse, same errors; a mesh whose URI does not resolve
+    raises :class:`ProbeError`), but returns ``(sdf_version, shapes)``.
+    """
+    doc = _run_probe(world, model_dirs, tmp)
+    return str(doc["sdf_version"]), [_to_shape(e) for e in doc.get("shapes", [])]
+
+
+def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
+    shape = ShapeProbe(
+        model=entry["model"],
+        link=entry["link"],
+        kind=entry["kind"],
+        name=entry["name"],
+        pose=_tuple(entry["pose"]),  # type: ignore[arg-type]
+        pose_method=entry["pose_method"],
+        type=entry["type"],
+    )
+    if "size" in entry:
+        shape.size = _tuple(entry["size"])
+    if "normal" in entry:
+        shape.normal = _tuple(entry["normal"])  # type: ignore[assignment]
+    if shape.type == "mesh":
+        shape.uri = entry["uri"]
+        shape.path = Path(entry["path"]) if entry.get("path") else None
+        shape.scale = _tuple(entry["scale"])  # type: ignore[assignment]
+        shape.mesh_loaded = bool(entry.get("mesh_loaded", False))
+        if shape.mesh_loaded:
+            shape.mesh_min = _tuple(entry["mesh_min"])  # type: ignore[assignment]
+            shape.mesh_max = _tuple(entry["mesh_max"])  # type: ignore[assignment]
+            raw = np.fromfile(entry["triangles_file"], dtype="<f8")
+            shape.triangles = raw.reshape(-1, 3, 3)
+    for line in entry.get("polylines", []):
+        points = np.asarray(line["points"], dtype=np.float64).reshape(-1, 2)
+        shape.polylines.append((float(line["height"]), points))
+    return shape
+
+
+def _run_probe(world: Path, model_dirs: list[Path], tmp: Path) -> dict[str, Any]:
+    """Run the probe on ``world``; its JSON document."""
     binary = probe_binary()
     out_dir = Path(tmp) / f"probe-{hashlib.sha256(str(world).encode()).hexdigest()[:8]}"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -224,9 +305,8 @@ def probe_world(world: Path, model_dirs: list[Path], tmp: Path) -> tuple[str, li
         raise ProbeError(
             f"heightmap_probe exited {result.returncode}:\n{result.stderr}\n{result.stdout}"
         )
-    doc = json.loads(result.stdout)
-    original = str(doc.get("sdf_original_version", ""))
-    return str(doc["sdf_version"]), [_to_probe(e, original) for e in doc["heightmaps"]]
+    doc: dict[str, Any] = json.loads(result.stdout)
+    return doc
 
 
 # --------------------------------------------------------------------------- height

@@ -17,7 +17,14 @@ examples:
   scan2terrain map2world map.yaml -o out --simulator gz --filter paper --height 2.5 --upsample 2
   scan2terrain image2world floorplan.png -o out --resolution 0.02 --height 1.5 --invert
   scan2terrain map2world map.yaml -o out --config configs/indoor.yaml --overwrite
+  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif -o sfbay
 """
+
+#: Defaults a command sets before the config file and the flags (which both override them).
+COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
+    # A DEM spans hundreds of metres of height: 8 bits would be steps of range / 255.
+    "dem2world": {"terrain.bit_depth": 16, "world.simulator": "gz", "filter.kind": "none"},
+}
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -128,6 +135,26 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
 
+def _geometry_options(p: argparse.ArgumentParser) -> None:
+    """Options of the commands whose grid is occupancy (walls), not heights."""
+    g = p.add_argument_group("walls (occupancy grids)")
+    g.add_argument(
+        "--geometry",
+        choices=("heightmap", "mesh", "boxes", "polylines"),
+        dest="world.geometry",
+        help="how occupied cells become walls: a heightmap (default), one extruded mesh "
+        "(STL/DAE/OBJ), the fewest boxes that cover them, or SDF polylines; map frame = world "
+        "frame in both simulators for all but heightmap",
+    )
+    g.add_argument(
+        "--simplify",
+        type=float,
+        dest="world.simplify",
+        help="metres: straighten mesh/polyline outlines within this tolerance, keeping every "
+        "cell on its side (default 0: cell edges)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scan2terrain",
@@ -149,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument("map", type=Path, help="map_server YAML file")
     _common(m)
+    _geometry_options(m)
     m.add_argument(
         "--unknown",
         choices=("free", "obstacle", "height"),
@@ -197,8 +225,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
     _common(t)
+    _geometry_options(t)
     _octree_options(t)
     _bag_commands(sub)
+    _dem_command(sub)
     return parser
 
 
@@ -345,6 +375,7 @@ def _bag_commands(sub: Any) -> None:
     )
     b.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
     _common(b)
+    _geometry_options(b)
     _octree_options(b)
     _scan_options(b, bag=True)
     _progress_option(b)
@@ -363,6 +394,7 @@ def _bag_commands(sub: Any) -> None:
     )
     c.add_argument("clouds", type=Path, nargs="+", help="point-cloud file(s)")
     _common(c)
+    _geometry_options(c)
     _octree_options(c)
     _scan_options(c, bag=False)
 
@@ -414,6 +446,45 @@ def _progress_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _dem_command(sub: Any) -> None:
+    d = sub.add_parser(
+        "dem2world",
+        help="elevation model (single-band GeoTIFF) -> Gazebo world at true elevations",
+        description="Read a DEM (GeoTIFF, projected or geographic; no GDAL needed) and write a "
+        "world whose ground is at the DEM's elevations: the DEM centre is the world origin "
+        "(x east, y north, metres; the CRS offset is printed and written in the SDF), world "
+        "z = elevation. Pixels stay the DEM's own when they are square in metres, else are "
+        "resampled bilinearly onto square pixels that fill the 2^n+1 image; the image is padded "
+        "to 2^n+1 at the lowest height. Defaults for DEMs: --simulator gz, --bit-depth 16, "
+        "--filter none (Gazebo Classic needs --bit-depth 8). Any --filter is a plain median; "
+        "--height and --invert do not apply; canvas options count heightmap pixels.",
+        epilog="examples:\n"
+        "  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif "
+        "-o sfbay\n"
+        "  scan2terrain dem2world site_utm.tif -o site --resolution 2 --dem-passthrough\n"
+        "  scan2terrain dem2world dem.tif -o both --simulator both --bit-depth 8\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
+    _common(d)
+    g = d.add_argument_group("elevation model")
+    g.add_argument(
+        "--resolution",
+        type=float,
+        dest="dem.resolution",
+        help="heightmap pixel size in metres (default: the DEM's own); also the pixel size of "
+        "a TIFF without georeference, which is refused without it",
+    )
+    g.add_argument(
+        "--dem-passthrough",
+        action="store_const",
+        const=True,
+        dest="dem.passthrough",
+        help="also copy the GeoTIFF into a model and write world_gz_dem.sdf that loads it "
+        "directly (gz-sim >= 7 built with GDAL)",
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -460,13 +531,15 @@ def _run(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {
         k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
     }
-    cfg = load_config(args.config, overrides)
+    cfg = load_config(args.config, overrides, defaults=COMMAND_DEFAULTS.get(args.command))
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":
         result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
     elif args.command == "octree2world":
         result = pipeline.octree2world(args.tree, args.out, cfg, overwrite=args.overwrite)
+    elif args.command == "dem2world":
+        result = pipeline.dem2world(args.dem, args.out, cfg, overwrite=args.overwrite)
     else:
         result = pipeline.image2world(args.image, args.out, cfg, overwrite=args.overwrite)
     if not args.quiet:
@@ -533,8 +606,11 @@ class ProgressBar:
 def report(result: Any) -> str:
     """How to open what was written, for a human."""
     out = result.out
+    walls = getattr(result, "geometry", "heightmap") != "heightmap"
     lines = [
-        f"Wrote {out}/ (heightmap {result.heightmap_side}x{result.heightmap_side} px at "
+        f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
+        if walls
+        else f"Wrote {out}/ (heightmap {result.heightmap_side}x{result.heightmap_side} px at "
         f"{result.resolution:g} m/px, heights up to {result.size_z:g} m)"
     ]
     for w in result.worlds:
@@ -546,6 +622,12 @@ def report(result: Any) -> str:
                 "  gz-sim (Garden or newer; DART physics, the default engine):",
                 f"    GZ_SIM_RESOURCE_PATH={models} gz sim {world}",
                 f"    (Fortress: IGN_GAZEBO_RESOURCE_PATH={models} ign gazebo {world})",
+                "    map frame = world frame: a map point (x, y) is world (x, y).",
+            ]
+        elif walls:
+            lines += [
+                "  Gazebo Classic:",
+                f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
                 "    map frame = world frame: a map point (x, y) is world (x, y).",
             ]
         else:

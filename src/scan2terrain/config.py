@@ -17,6 +17,7 @@ from scan2terrain.errors import ConfigError
 FILTERS = ("none", "median", "majority", "paper", "thin_wall")
 UNKNOWN_POLICIES = ("free", "obstacle", "height")
 SIMULATORS = ("gz", "classic", "both")
+GEOMETRIES = ("heightmap", "mesh", "boxes", "polylines")
 POSE_SOURCES = ("auto", "tf", "odom", "trajectory", "fixed")
 
 
@@ -76,6 +77,13 @@ class WorldConfig:
     model_name: str | None = None
     #: Vertex sampling written into the SDF (None: 1 for gz, 2 for classic, each one's default).
     sampling: int | None = None
+    #: How occupancy grids become walls: heightmap | mesh (extruded outlines: STL, DAE, OBJ)
+    #: | boxes (the fewest boxes covering the occupied cells) | polylines (SDF <polyline>),
+    #: each ``terrain.height`` high on a ground plane, map frame = world frame in both simulators.
+    geometry: str = "heightmap"
+    #: Outline simplification for mesh/polylines: staircases straightened within this many
+    #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
+    simplify: float = 0.0
 
 
 @dataclass
@@ -161,6 +169,18 @@ class ScansConfig:
 
 
 @dataclass
+class DemConfig:
+    """Digital elevation models (dem2world)."""
+
+    #: Heightmap pixel size in metres; None = the DEM's own (the finer axis when its pixels are
+    #: not square). Also the pixel size of a TIFF that carries no georeference.
+    resolution: float | None = None
+    #: Also write world_gz_dem.sdf, a gz-sim world that loads the GeoTIFF itself (gz-sim >= 7
+    #: built with GDAL).
+    passthrough: bool = False
+
+
+@dataclass
 class Config:
     canvas: CanvasConfig = field(default_factory=CanvasConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -170,6 +190,7 @@ class Config:
     image: ImageConfig = field(default_factory=ImageConfig)
     octree: OctreeConfig = field(default_factory=OctreeConfig)
     scans: ScansConfig = field(default_factory=ScansConfig)
+    dem: DemConfig = field(default_factory=DemConfig)
     #: Refuse images with more pixels than this (decompression bombs).
     max_pixels: int = 1 << 28
 
@@ -212,6 +233,24 @@ class Config:
             "world.sampling",
             c.world.sampling,
             ">= 1",
+        )
+        w = c.world
+        _check(w.geometry in GEOMETRIES, "world.geometry", w.geometry, f"one of {GEOMETRIES}")
+        _check(
+            0 <= w.simplify < float("inf"), "world.simplify", w.simplify, ">= 0 metres (0: exact)"
+        )
+        walls = w.geometry != "heightmap"
+        _check(
+            not walls or c.terrain.unknown != "height",
+            "terrain.unknown",
+            c.terrain.unknown,
+            f"free or obstacle with world.geometry {w.geometry} (walls have one height)",
+        )
+        _check(
+            not walls or c.octree.grid == "occupancy",
+            "octree.grid",
+            c.octree.grid,
+            f"occupancy with world.geometry {w.geometry} (walls come from occupied cells)",
         )
         name = c.world.model_name
         _check(
@@ -275,6 +314,12 @@ class Config:
             sc.start,
             "<= scans.end",
         )
+        _check(
+            c.dem.resolution is None or c.dem.resolution > 0,
+            "dem.resolution",
+            c.dem.resolution,
+            "> 0 metres",
+        )
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -286,11 +331,19 @@ def _check(ok: bool, name: str, value: object, want: str) -> None:
         raise ConfigError(f"config value {name} = {value!r} is invalid: must be {want}")
 
 
-def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
-    """Defaults, then the YAML file at ``path``, then ``overrides`` ({"section.key": value})."""
+def load_config(
+    path: Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    *,
+    defaults: dict[str, Any] | None = None,
+) -> Config:
+    """Defaults, then a command's own ``defaults``, then the YAML file at ``path``, then
+    ``overrides`` (both dicts {"section.key": value})."""
     import yaml
 
     cfg = Config()
+    for dotted, value in (defaults or {}).items():
+        _apply(cfg, _nest(dotted, value), "command defaults")
     if path is not None:
         try:
             doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))

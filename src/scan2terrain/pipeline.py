@@ -3,6 +3,10 @@
 map2world:   read map YAML -> classify -> invert/canvas -> filter -> align to world axes
              -> heights (unknown policy) -> heightmap -> model + world per simulator, map, preview
 image2world: read image -> luminance -> invert/canvas -> filter -> align -> heights -> ... (same)
+dem2world:   read GeoTIFF -> square pixels, DEM centre at the origin -> canvas/filter -> heights
+             above the lowest -> 16-bit heightmap at z = lowest elevation -> worlds, preview
+walls:       with world.geometry mesh | boxes | polylines, an occupancy grid's occupied cells
+             -> outlines (mesh, polylines) or merged boxes -> one static model per simulator
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, TypeVar
@@ -18,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
-from scan2terrain.errors import InputError
+from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap, make_heightmap
@@ -42,10 +47,11 @@ from scan2terrain.grids import (
     upsample,
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
-from scan2terrain.types import UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.readers.dem import Dem
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
@@ -75,6 +81,8 @@ class Result:
     preview: Path | None = None
     config: Path | None = None
     notes: list[str] = field(default_factory=list)  #: what was read and chosen, for the report
+    geometry: str = "heightmap"  #: world.geometry of the worlds written
+    walls: str = ""  #: for wall geometries: what the walls are made of, for the report
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -193,6 +201,16 @@ def occupancy_world(
     trinary = invert_occupancy(grid.data) if cfg.canvas.invert else grid.data
     trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
+    if cfg.world.geometry != "heightmap":
+        return walls_world(
+            grid.with_data(filtered, origin),
+            source,
+            out,
+            cfg,
+            overwrite=overwrite,
+            preview=preview_png(trinary, filtered, occupancy=True),
+            extra=extra,
+        )
 
     aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
     t = cfg.terrain
@@ -315,6 +333,7 @@ def height_world(
     """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known
     height. Filters: the plain median (``filter.size``) when filtering is on, as heights are
     not labels."""
+    heightmap_only(cfg, "a height grid")
     heights = grid.heights
     known = grid.known
     floor = float(heights[known].min()) if known.any() else 0.0
@@ -351,6 +370,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     """Any image to a Gazebo world folder: luminance is height, white is ``terrain.height``."""
     from scan2terrain.readers import read_grey_image
 
+    heightmap_only(cfg, "image2world")
     refuse_existing(out, overwrite)
     img = read_grey_image(image_path, max_pixels=cfg.max_pixels)
     values = np.ascontiguousarray(np.flipud(img.values))
@@ -384,7 +404,391 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     )
 
 
+# --- walls (world.geometry mesh | boxes | polylines) -----------------------------------------
+
+
+@dataclass(frozen=True)
+class _Walls:
+    """What a walls world is made of, ready for the SDF writers."""
+
+    model_sdf: Callable[[sdf.Placement, str], bytes]  #: (placement, comment) -> model.sdf
+    files: dict[str, bytes]  #: model-folder files besides model.sdf / model.config
+    summary: str  #: what the walls are, for the SDF comment and the report
+
+
+def walls_world(
+    grid: OccupancyGrid,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool,
+    preview: bytes,
+    extra: dict[str, bytes] | None = None,
+) -> Result:
+    """A filtered trinary grid to a world of walls (``world.geometry``: mesh, boxes, polylines).
+
+    The walls are the occupied cells (and the unknown ones with ``terrain.unknown: obstacle``),
+    ``terrain.height`` metres high, on a ground plane over the grid. Their geometry is written in
+    the grid's own map-frame pose (yaw included, no resampling) and the model sits at the world
+    origin in both simulators: a map point (x, y) is the world point (x, y). The map/ folder,
+    preview and config are written as for heightmaps (map/ in world axes, ``grids.axis_align``).
+
+    Raises
+    ------
+    InputError
+        If no cell is a wall (nothing is written).
+    """
+    t, kind = cfg.terrain, cfg.world.geometry
+    walls = grid.data == OCCUPIED
+    if t.unknown == "obstacle":
+        walls |= grid.data == UNKNOWN
+    if not walls.any():
+        raise InputError(
+            source, f"no occupied cell (after filtering) to build --geometry {kind} walls from"
+        )
+    r, origin = grid.resolution, grid.origin
+    rows, cols = walls.shape
+    cx, cy = origin.transform(np.array(cols * r / 2), np.array(rows * r / 2))
+    ground = sdf.Ground((float(cx), float(cy)), (cols * r, rows * r), origin.yaw)
+    made = _walls(walls, r, origin, ground=ground, cfg=cfg, source=source)
+    described = (
+        f" Generated by scan2terrain from {source.name}: walls {t.height!r} m high on a ground"
+        f" plane, from the {int(walls.sum())} wall cells of a {rows}x{cols} grid at {r!r} m/cell"
+        f" ({_filter_text(cfg)}), as {made.summary}.\n"
+        " Map frame (x, y) = world (x, y), in gz-sim and in Gazebo Classic alike: the model sits"
+        " at the world origin and the geometry is written in map coordinates (unlike a"
+        " heightmap, meshes, boxes and polylines can be placed anywhere).\n"
+    )
+    payload = repr((kind, cfg.world.simplify, t.height, r, origin, walls.shape)).encode()
+    base_name = _unique_name(source, walls.tobytes() + payload, cfg)
+    aligned, world_origin = axis_align(grid.data, origin, r, fill=UNKNOWN)
+    map_out = OccupancyGrid(aligned, r, world_origin)
+    sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
+    result = Result(out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary)
+    with atomic_output(out, overwrite=overwrite) as od:
+        _write_map_pgm(od, cfg, map_out)
+        for sim in sims:
+            name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
+            p = sdf.walls_placement(sim, name, kind, ground, t.height)
+            mdir = f"models/{name}"
+            for rel, data in made.files.items():
+                od.write(f"{mdir}/{rel}", data)
+            od.write(f"{mdir}/model.sdf", made.model_sdf(p, described))
+            od.write(f"{mdir}/model.config", sdf.model_config(p, f"Walls from {source.name}"))
+            world = od.write(
+                WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=described)
+            )
+            map_yaml = _write_map_yaml(
+                od, cfg, map_out, sim=sim, offset=(0.0, 0.0), comment=described
+            )
+            result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
+        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
+    return result
+
+
+def _walls(
+    walls: NDArray[np.bool_],
+    resolution: float,
+    origin: Pose2D,
+    *,
+    ground: sdf.Ground,
+    cfg: Config,
+    source: Path,
+) -> _Walls:
+    kind = cfg.world.geometry
+    if kind == "boxes":
+        from scan2terrain.exporters.boxes import merge_boxes
+
+        cells = merge_boxes(walls)
+        boxes = _box_poses(cells, resolution, origin)
+        return _Walls(
+            lambda p, comment: sdf.boxes_model_sdf(p, ground, boxes, comment=comment),
+            {},
+            f"{len(cells)} boxes (the fewest that cover the wall cells exactly) in one model",
+        )
+    from scan2terrain.exporters import outlines
+
+    polygons = outlines.trace(walls, resolution, origin)
+    simplified = ""
+    if cfg.world.simplify > 0:
+        polygons = outlines.simplify(
+            polygons, cfg.world.simplify, resolution=resolution, origin=origin
+        )
+        simplified = (
+            f", straightened within {cfg.world.simplify!r} m without moving any cell centre across"
+        )
+        if not polygons:
+            raise InputError(
+                source, f"no wall outline is left after --simplify {cfg.world.simplify!r}"
+            )
+    holes = sum(len(poly.holes) for poly in polygons)
+    outline = f"{len(polygons)} outline polygons with {holes} holes{simplified}"
+    if kind == "polylines":
+        rings = [poly.rings() for poly in polygons]
+        return _Walls(
+            lambda p, comment: sdf.polylines_model_sdf(p, ground, rings, comment=comment),
+            {},
+            f"{outline}, one <polyline> geometry each (holes as extra <polyline> elements)",
+        )
+    from scan2terrain.exporters import mesh as meshes
+
+    mesh = meshes.extrude(polygons, cfg.terrain.height)
+    stem = f"{sdf.MESH_DIR}/{sdf.MESH_STEM}"
+    files = {
+        f"{stem}.stl": meshes.stl_bytes(mesh),
+        f"{stem}.dae": meshes.dae_bytes(mesh, sdf.MESH_STEM),
+        f"{stem}.obj": meshes.obj_bytes(mesh),
+    }
+    return _Walls(
+        lambda p, comment: sdf.mesh_model_sdf(p, ground, comment=comment),
+        files,
+        f"one mesh of {len(mesh.faces)} triangles extruded from {outline}"
+        f" ({stem}.stl for collision, .dae for the visual, .obj)",
+    )
+
+
+def _box_poses(cells: NDArray[np.int64], resolution: float, origin: Pose2D) -> NDArray[np.float64]:
+    """Boxes in cells ``[row0, col0, n_rows, n_cols]`` -> ``[x, y, size_x, size_y, yaw]``:
+    centres in the map frame (metres), sizes along the grid's axes, the grid's yaw."""
+    c = cells.astype(np.float64)
+    u = (c[:, 1] + c[:, 3] / 2) * resolution
+    v = (c[:, 0] + c[:, 2] / 2) * resolution
+    x, y = origin.transform(u, v)
+    yaw = np.full(len(c), origin.yaw)
+    return np.stack([x, y, c[:, 3] * resolution, c[:, 2] * resolution, yaw], axis=1)
+
+
+def _filter_text(cfg: Config) -> str:
+    f = cfg.filter
+    if not f.enabled or (f.kind == "none" and f.speckle_min_cells <= 1):
+        return "no filter"
+    text = f"filter {f.kind}"
+    if f.speckle_min_cells > 1:
+        text += f", specks under {f.speckle_min_cells} cells removed"
+    return text
+
+
+def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
+    """A DEM (single-band GeoTIFF) to a world folder whose ground is at the true elevation.
+
+    World frame: the DEM's centre is the world origin, x east, y north, metres (CRS coordinates,
+    UTM or degrees, are far too large for a simulator's float32 rendering); for a geographic DEM
+    x and y are the equirectangular projection at its centre latitude. The offset is in the
+    report, in the SDF comments and in ``Result.notes``. World z is the elevation in gz-sim:
+    the heightmap's 0 is the lowest valid height (its pose z) and ``size.z`` the height range.
+    Gazebo Classic writes no heightmap pose here, so its ground sits at elevation - lowest.
+
+    Pixels: the DEM's own when they are square in metres (projected DEMs), so every sample keeps
+    its height exactly; otherwise (geographic DEMs) bilinear resampling to square pixels that
+    fill the 2^n+1 image the finer pixel size needs (``Dem.default_resolution``); the corner
+    samples stay exact. ``dem.resolution`` or ``terrain.upsample`` (bilinear here, not blocks)
+    choose another size. The grid is then padded, never stretched, to the next square 2^n+1 at
+    the lowest height (gz-common's own DEM loader also pads with the lowest height). Filters:
+    the plain median (``filter.size``) when filtering is on.
+    """
+    import dataclasses
+
+    from scan2terrain.errors import ConfigError
+    from scan2terrain.grids import canvas as grid_canvas
+    from scan2terrain.readers.dem import read_dem
+
+    refuse_existing(out, overwrite)
+    heightmap_only(cfg, "dem2world")
+    t = cfg.terrain
+    if t.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
+        raise ConfigError(
+            "Gazebo Classic reads only the first byte of each heightmap pixel: use "
+            "--bit-depth 8 with --simulator classic or both (16-bit is gz-sim only)"
+        )
+    if cfg.canvas.invert:
+        raise ConfigError("canvas.invert (--invert) has no meaning for a DEM")
+    source = Path(dem_path)
+    dem = read_dem(source, pixel_size=cfg.dem.resolution, max_pixels=cfg.max_pixels)
+    base = cfg.dem.resolution if cfg.dem.resolution is not None else dem.default_resolution()
+    res = base / t.upsample
+    cells = (dem.extent[0] / res + 2) * (dem.extent[1] / res + 2)
+    if cells > cfg.max_pixels:
+        raise ConfigError(
+            f"{res:g} m pixels make the {dem.extent[0]:.0f} x {dem.extent[1]:.0f} m DEM "
+            f"~{cells:.3g} pixels, over max_pixels {cfg.max_pixels}: choose a coarser "
+            "--resolution"
+        )
+    grid = dem.to_height_grid(res)
+    c = cfg.canvas
+    heights, origin = grid_canvas(
+        grid.heights, grid.origin, res, width=c.width, height=c.height,
+        offset_x=c.offset_x, offset_y=c.offset_y, fill=dem.z_min,
+    )  # fmt: skip
+    known, _ = grid_canvas(
+        grid.known, grid.origin, res, width=c.width, height=c.height,
+        offset_x=c.offset_x, offset_y=c.offset_y, fill=False,
+    )  # fmt: skip
+    if not known.any():
+        raise InputError(source, "the canvas options leave no DEM cell")
+    before = heights
+    f = cfg.filter
+    if f.enabled and f.kind != "none":
+        heights = median_filter(heights, size=f.size)
+    # The DEM's own lowest elevation is the heightmap's 0 (and the padding), even where the
+    # grid was resampled, cropped or filtered: pose z is always that elevation.
+    z0 = dem.z_min
+    top = float(heights[known].max())
+    above = np.clip(np.where(known, heights - np.float32(z0), 0), 0, top - z0)
+    hm = make_heightmap(
+        HeightGrid(above.astype(np.float32), np.ones(above.shape, dtype=bool), res, origin),
+        bit_depth=t.bit_depth,
+        pad_height=0.0,
+    )
+    # make_heightmap puts 0 at min(0, lowest) = 0 here; the ground's 0 is the lowest elevation.
+    hm = dataclasses.replace(hm, z_min=z0)
+    notes = _dem_notes(source, dem, res, hm)
+    extra: dict[str, bytes] = {}
+    if cfg.dem.passthrough:
+        name = f"{model_name_for(source, hm, cfg)}_dem"
+        # What the PNG world's notes say about the DEM and its frame, not about its pixels.
+        about = (notes[0], notes[2], *dem.notes)
+        extra = _dem_passthrough(source, dem, name, cfg, "".join(f" {n}\n" for n in about))
+        notes.append(
+            "gz-sim >= 7 with GDAL can load the GeoTIFF itself: world_gz_dem.sdf (model "
+            f"{name}; not checked here: the test harness's gz-common has no DEM support)"
+        )
+    result = _write(
+        out,
+        cfg,
+        overwrite=overwrite,
+        source=source,
+        hm=hm,
+        # Texture blend heights, in the heightmap's own heights (0 = its lowest point).
+        levels=(0.0, hm.z_range / 2, hm.z_range),
+        map_out=None,
+        preview=preview_png(_grey8(before, z0, top), _grey8(heights, z0, top), occupancy=False),
+        extra=extra,
+        comment_extra="".join(f" {n}\n" for n in notes),
+    )
+    result.notes.extend(notes)
+    return result
+
+
+def _dem_notes(source: Path, dem: Dem, res: float, hm: Heightmap) -> list[str]:
+    """What was read and where it went: for the report and the SDF comments."""
+    rows, cols = dem.shape
+    px, py = dem.pixel_size
+    crs = dem.crs + (f" ({dem.citation})" if dem.citation else "")
+    own = abs(px - res) <= 1e-6 * res and abs(py - res) <= 1e-6 * res
+    lines = [
+        f"DEM {source.name}: {crs}, {cols}x{rows} px of {px:.6g} x {py:.6g} m "
+        f"({dem.extent[0]:.6g} x {dem.extent[1]:.6g} m), elevations {dem.z_min:.6g} .. "
+        f"{dem.z_max:.6g} m, {int((~dem.valid).sum())} nodata px (set to the lowest).",
+        f"Heightmap pixels: the DEM's own, {res:.6g} m."
+        if own
+        else f"Heightmap pixels: {res:.6g} m, resampled bilinearly from {px:.6g} x {py:.6g} m.",
+    ]
+    cx, cy = dem.centre
+    if dem.crs == "geographic":
+        lines.append(
+            f"Map frame = DEM frame: x east, y north, metres from the DEM centre (latitude "
+            f"{cy!r}, longitude {cx!r}, {dem.units}s): a point (lat, lon) is at x = "
+            f"{dem.radius!r} cos(lat0) (lon - lon0), y = {dem.radius!r} (lat - lat0), radians."
+        )
+    elif dem.crs == "projected":
+        k = dem.pixel_size[0] / dem.pixel_size_crs[0]
+        unit = "" if abs(k - 1) < 1e-12 else f", times {k!r} m/{dem.units}"
+        lines.append(
+            f"Map frame = DEM frame: x east, y north, metres from the DEM centre, CRS "
+            f"({cx!r}, {cy!r}) {dem.units}s: a point (E, N) is at (E - {cx!r}, N - {cy!r}){unit}."
+        )
+    else:
+        lines.append("Map frame = DEM frame: metres from the image centre, x right, y up.")
+    lines.append(
+        f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m);"
+        f" in Gazebo Classic z = elevation - {hm.z_min!r} m."
+    )
+    return lines + list(dem.notes)
+
+
+def _dem_passthrough(
+    source: Path, dem: Dem, name: str, cfg: Config, comment: str
+) -> dict[str, bytes]:
+    """A gz-sim model and world that hand the GeoTIFF itself to gz-common's ``Dem`` (GDAL).
+
+    The geometry follows gz-common 5 ``Dem::Load``/``LoadData`` and gz-physics 6
+    ``CustomHeightmapShape``: the raster is resampled (GDAL nearest neighbour) so its longer
+    side in pixels fills N = the next 2^n+1 and the other keeps the aspect ratio in pixels
+    (``int(N / (W / H))``), the data sits in the top-left (north-west) corner, padded at the
+    lowest height, and heights are absolute (pose z 0) when ``size.z`` = max - min of that
+    raster. Loaded pixel k is vertex k s, vertices ``size / vertSize`` apart.
+    """
+    from lxml import etree
+
+    rows, cols = dem.shape
+    n = max(_gz_side(cols), _gz_side(rows))
+    if cols > rows:
+        dest_w = n
+        dest_h = int(np.float32(n) / (np.float32(cols) / np.float32(rows)))
+    else:
+        dest_h = n
+        dest_w = int(np.float32(n) / (np.float32(rows) / np.float32(cols)))
+    dest_w, dest_h = max(dest_w, 1), max(dest_h, 1)
+    # GDAL RasterIO nearest neighbour: destination pixel k reads source pixel
+    # floor((k + 0.5) * source / destination). Raster rows run north first.
+    ci = np.minimum(((np.arange(dest_w) + 0.5) * cols / dest_w + 1e-10).astype(int), cols - 1)
+    ri = np.minimum(((np.arange(dest_h) + 0.5) * rows / dest_h + 1e-10).astype(int), rows - 1)
+    loaded = dem.heights[::-1][np.ix_(ri, ci)]
+    valid = dem.valid[::-1][np.ix_(ri, ci)]
+    z_lo, z_hi = float(loaded[valid].min()), float(loaded[valid].max())
+    sx, sy = dem.extent[0] / dest_w, dem.extent[1] / dest_h
+    s = sdf.DEFAULT_SAMPLING[GZ] if cfg.world.sampling is None else cfg.world.sampling
+    vert = n * s - s + 1
+    size = (sx * vert / s, sy * vert / s, (z_hi - z_lo) or 1.0)
+    # The field's centre is loaded pixel (n - 1) / 2, counted from the north-west corner.
+    centre = (-dem.extent[0] / 2 + n * sx / 2, dem.extent[1] / 2 - n * sy / 2)
+    hm = Heightmap(np.zeros((n, n), np.uint8), sx, centre, 0.0, size[2], (0, 0), (rows, cols))
+    p = sdf.Placement(GZ, name, s, size, (0.0, 0.0))
+    tif = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', source.stem) or 'dem'}.tif"
+    text = (
+        f" Generated by scan2terrain from {source.name}: gz-sim >= 7 (gz-common built with GDAL)"
+        " loads the GeoTIFF itself.\n Heights are absolute: size.z = max - min of the raster"
+        " gz-common loads, pose z = 0.\n" + comment
+    )
+    model = etree.fromstring(
+        sdf.model_sdf(hm, p, levels=(z_lo, (z_lo + z_hi) / 2, z_hi), comment=text)
+    )
+    for uri in model.iter("uri"):
+        parent = uri.getparent()
+        if parent is not None and parent.tag == "heightmap":
+            uri.text = f"model://{name}/{tif}"
+    files = {
+        f"models/{name}/{tif}": source.read_bytes(),
+        f"models/{name}/model.sdf": etree.tostring(
+            model, pretty_print=True, xml_declaration=True, encoding="UTF-8"
+        ),
+        f"models/{name}/model.config": sdf.model_config(p, f"Terrain from {source.name} (DEM)"),
+        "world_gz_dem.sdf": sdf.world_sdf(p, world_name="scan2terrain", comment=text),
+    }
+    for fname, data in sdf.texture_pngs().items():
+        files[f"models/{name}/{sdf.TEXTURE_DIR}/{fname}"] = data
+    return files
+
+
+def _gz_side(k: int) -> int:
+    """gz-common's DEM side for k pixels (``Dem::Load``): k when k - 1 is a power of two, else
+    the next power of two >= k, plus one."""
+    if k > 1 and (k - 1) & (k - 2) == 0:
+        return k
+    return (1 << max(0, (k - 1).bit_length())) + 1
+
+
 # --- writing ---------------------------------------------------------------------------------
+
+
+def heightmap_only(cfg: Config, what: str) -> None:
+    """Refuse wall geometries for inputs that are heights, not occupancy."""
+    if cfg.world.geometry != "heightmap":
+        raise ConfigError(
+            f"world.geometry {cfg.world.geometry} needs an occupancy grid (map2world, or"
+            f" octree/bag/cloud2world with octree.grid occupancy); {what} makes heightmaps only"
+        )
 
 
 def refuse_existing(out: Path, overwrite: bool) -> None:
@@ -399,12 +803,16 @@ def model_name_for(source: Path, hm: Heightmap, cfg: Config) -> str:
     reuse the name of an old one. The digest covers what the cache holds, the pixels and their
     scale and placement, not unrelated options, and not the PNG bytes (they depend on zlib).
     """
+    geometry = repr((hm.resolution, hm.centre, hm.z_min, hm.z_range, cfg.world.sampling))
+    return _unique_name(source, hm.pixels.tobytes() + geometry.encode(), cfg)
+
+
+def _unique_name(source: Path, content: bytes, cfg: Config) -> str:
+    """``world.model_name``, else input stem + the first 8 hex digits of sha256(content)."""
     if cfg.world.model_name:
         return cfg.world.model_name
     stem = re.sub(r"[^A-Za-z0-9]+", "_", source.stem).strip("_").lower() or "terrain"
-    geometry = repr((hm.resolution, hm.centre, hm.z_min, hm.z_range, cfg.world.sampling))
-    digest = hashlib.sha256(hm.pixels.tobytes() + geometry.encode()).hexdigest()[:8]
-    return f"{stem}_{digest}"
+    return f"{stem}_{hashlib.sha256(content).hexdigest()[:8]}"
 
 
 def _write(
@@ -418,21 +826,18 @@ def _write(
     map_out: OccupancyGrid | None,
     preview: bytes,
     extra: dict[str, bytes] | None = None,
+    comment_extra: str = "",
 ) -> Result:
-    import yaml
-
     png = hm.png()
     base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
     with atomic_output(out, overwrite=overwrite) as od:
-        pgm_name = "map.pgm"
-        if map_out is not None and cfg.output.map_yaml:
-            od.write(f"map/{pgm_name}", map_export.map_pgm(map_out))
+        _write_map_pgm(od, cfg, map_out)
         for sim in sims:
             name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
             p = sdf.placement_for(hm, sim, name, cfg.world.sampling)
-            comment = _comment(source, hm, p)
+            comment = _comment(source, hm, p) + comment_extra
             mdir = f"models/{name}"
             od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}", png)
             if sim == GZ:
@@ -443,29 +848,62 @@ def _write(
             world = od.write(
                 WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment)
             )
-            map_yaml = None
-            if map_out is not None and cfg.output.map_yaml:
-                shifted = map_out.with_data(
-                    map_out.data,
-                    Pose2D(map_out.origin.x - p.offset[0], map_out.origin.y - p.offset[1], 0.0),
-                )
-                map_yaml = od.write(
-                    f"map/map_{sim}.yaml",
-                    map_export.map_yaml(
-                        shifted,
-                        pgm_name,
-                        comment=f"Filtered map in the {sim} world frame.\n{comment}",
-                    ),
-                )
+            map_yaml = _write_map_yaml(od, cfg, map_out, sim=sim, offset=p.offset, comment=comment)
             result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
-        if cfg.output.preview:
-            result.preview = od.write("preview.png", preview)
-        for name, data in (extra or {}).items():
-            od.write(name, data)
-        header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
-        body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
-        result.config = od.write(CONFIG_FILE, (header + body).encode())
+        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
+
+
+MAP_PGM = "map.pgm"
+
+
+def _write_map_pgm(od: OutputDir, cfg: Config, map_out: OccupancyGrid | None) -> None:
+    if map_out is not None and cfg.output.map_yaml:
+        od.write(f"map/{MAP_PGM}", map_export.map_pgm(map_out))
+
+
+def _write_map_yaml(
+    od: OutputDir,
+    cfg: Config,
+    map_out: OccupancyGrid | None,
+    *,
+    sim: str,
+    offset: tuple[float, float],
+    comment: str,
+) -> Path | None:
+    """map/map_<sim>.yaml: the filtered map with its origin in that simulator's world frame."""
+    if map_out is None or not cfg.output.map_yaml:
+        return None
+    shifted = map_out.with_data(
+        map_out.data, Pose2D(map_out.origin.x - offset[0], map_out.origin.y - offset[1], 0.0)
+    )
+    return od.write(
+        f"map/map_{sim}.yaml",
+        map_export.map_yaml(
+            shifted, MAP_PGM, comment=f"Filtered map in the {sim} world frame.\n{comment}"
+        ),
+    )
+
+
+def _write_tail(
+    od: OutputDir,
+    result: Result,
+    cfg: Config,
+    *,
+    source: Path,
+    preview: bytes,
+    extra: dict[str, bytes] | None,
+) -> None:
+    """Preview, extra files and the effective config, as every command writes them."""
+    import yaml
+
+    if cfg.output.preview:
+        result.preview = od.write("preview.png", preview)
+    for name, data in (extra or {}).items():
+        od.write(name, data)
+    header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
+    body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
+    result.config = od.write(CONFIG_FILE, (header + body).encode())
 
 
 def _comment(source: Path, hm: Heightmap, p: sdf.Placement) -> str:

@@ -20,6 +20,15 @@
 //   and writes the heights as raw little-endian float32, row-major
 //   (vertSize*vertSize values, row 0 = image top row) to OUT_DIR/<index>.f32.
 //
+// * Every other collision / visual geometry (box, plane, mesh, polyline, ...)
+//   is reported under "shapes" with its pose in the WORLD frame. Polylines
+//   come from the element tree (SDFormat 12.3 has no Polyline DOM class):
+//   every <polyline> of the geometry with its points and height. Meshes are
+//   loaded with gz-common's MeshManager (the loader gz-sim and its physics
+//   use: STL, COLLADA, OBJ), and their triangles, in the mesh frame after the
+//   loader's unit/up-axis handling, are written as raw little-endian float64
+//   (triangles x 3 vertices x xyz) to OUT_DIR/mesh<index>.f64.
+//
 //   gz-common 4.5.1's Image::MaxColor() fails on 16-bit images (it returns 0,
 //   logging "Coordinates out of range" for each pixel), so MaxElevation() is 0
 //   and gz-physics would fall back to scale.z = 1. A working gz-common scales to
@@ -29,14 +38,17 @@
 //
 // Exit status: 0 ok, 1 SDF parse error, 2 usage / image / I/O error.
 
+#include <sdf/Box.hh>
 #include <sdf/Collision.hh>
 #include <sdf/Element.hh>
 #include <sdf/Error.hh>
 #include <sdf/Geometry.hh>
 #include <sdf/Heightmap.hh>
 #include <sdf/Link.hh>
+#include <sdf/Mesh.hh>
 #include <sdf/Model.hh>
 #include <sdf/ParserConfig.hh>
+#include <sdf/Plane.hh>
 #include <sdf/Root.hh>
 #include <sdf/SemanticPose.hh>
 #include <sdf/Visual.hh>
@@ -45,6 +57,9 @@
 #include <ignition/common/Console.hh>
 #include <ignition/common/Image.hh>
 #include <ignition/common/ImageHeightmap.hh>
+#include <ignition/common/Mesh.hh>
+#include <ignition/common/MeshManager.hh>
+#include <ignition/common/SubMesh.hh>
 #include <ignition/math/Pose3.hh>
 #include <ignition/math/Vector3.hh>
 
@@ -400,6 +415,144 @@ void ReportHeightmap(const std::string &_model, const std::string &_link,
   g_entries.push_back(o.str());
 }
 
+std::vector<std::string> g_shapes;
+int g_meshIndex = 0;
+
+/////////////////////////////////////////////////
+/// Triangles of a mesh file as gz-common's MeshManager loads it, written to
+/// OUT_DIR/mesh<index>.f64; returns the JSON fields describing the load.
+std::string LoadMesh(const std::string &_path)
+{
+  std::ostringstream o;
+  const ignition::common::Mesh *mesh =
+      ignition::common::MeshManager::Instance()->Load(_path);
+  if (mesh == nullptr)
+  {
+    o << ", \"mesh_loaded\": false";
+    return o.str();
+  }
+  std::vector<double> xyz;
+  for (unsigned int si = 0; si < mesh->SubMeshCount(); ++si)
+  {
+    auto sub = mesh->SubMeshByIndex(si).lock();
+    if (!sub)
+      continue;
+    for (unsigned int k = 0; k + 2 < sub->IndexCount(); k += 3)
+    {
+      for (unsigned int c = 0; c < 3; ++c)
+      {
+        const Vector3d v = sub->Vertex(static_cast<unsigned int>(sub->Index(k + c)));
+        xyz.push_back(v.X());
+        xyz.push_back(v.Y());
+        xyz.push_back(v.Z());
+      }
+    }
+  }
+  const fs::path outPath =
+      fs::path(g_outDir) / ("mesh" + std::to_string(g_meshIndex++) + ".f64");
+  std::ofstream out(outPath, std::ios::binary);
+  out.write(reinterpret_cast<const char *>(xyz.data()),
+      static_cast<std::streamsize>(xyz.size() * sizeof(double)));
+  out.close();
+  if (!out)
+  {
+    std::cerr << "heightmap_probe: cannot write " << outPath << "\n";
+    g_status = 2;
+  }
+  o << ", \"mesh_loaded\": true"
+    << ", \"mesh_submeshes\": " << mesh->SubMeshCount()
+    << ", \"mesh_vertices\": " << mesh->VertexCount()
+    << ", \"mesh_triangles\": " << xyz.size() / 9
+    << ", \"mesh_min\": " << Vec(mesh->Min())
+    << ", \"mesh_max\": " << Vec(mesh->Max())
+    << ", \"triangles_file\": " << Str(fs::absolute(outPath).string());
+  return o.str();
+}
+
+/////////////////////////////////////////////////
+/// A collision / visual geometry that is not a heightmap.
+void ReportShape(const std::string &_model, const std::string &_link,
+    const std::string &_kind, const std::string &_name, const Pose3d &_pose,
+    const std::string &_poseMethod, const sdf::Geometry &_geom)
+{
+  std::ostringstream o;
+  o << "{\"model\": " << Str(_model)
+    << ", \"link\": " << Str(_link)
+    << ", \"kind\": " << Str(_kind)
+    << ", \"name\": " << Str(_name)
+    << ", \"pose\": " << PoseJson(_pose)
+    << ", \"pose_method\": " << Str(_poseMethod);
+  const sdf::ElementPtr elem = _geom.Element();
+  switch (_geom.Type())
+  {
+    case sdf::GeometryType::BOX:
+      o << ", \"type\": \"box\", \"size\": " << Vec(_geom.BoxShape()->Size());
+      break;
+    case sdf::GeometryType::PLANE:
+    {
+      const auto size = _geom.PlaneShape()->Size();
+      o << ", \"type\": \"plane\", \"size\": [" << Num(size.X()) << ", "
+        << Num(size.Y()) << "], \"normal\": " << Vec(_geom.PlaneShape()->Normal());
+      break;
+    }
+    case sdf::GeometryType::MESH:
+    {
+      const sdf::Mesh *mesh = _geom.MeshShape();
+      const std::string path = ResolveUri(mesh->Uri(), mesh->FilePath());
+      o << ", \"type\": \"mesh\", \"uri\": " << Str(mesh->Uri())
+        << ", \"scale\": " << Vec(mesh->Scale())
+        << ", \"path\": " << (path.empty() ? std::string("null") : Str(path));
+      if (path.empty())
+      {
+        std::cerr << "heightmap_probe: cannot resolve mesh uri [" << mesh->Uri()
+                  << "] of " << _model << "/" << _link << "/" << _name << "\n";
+        g_status = 2;
+      }
+      else
+      {
+        o << LoadMesh(path);
+      }
+      break;
+    }
+    default:
+      if (elem && elem->HasElement("polyline"))
+      {
+        // SDFormat 12.3 knows <polyline> only as elements; Gazebo extrudes all
+        // the polylines of one geometry together (holes: even-odd).
+        o << ", \"type\": \"polyline\", \"polylines\": [";
+        bool firstLine = true;
+        for (sdf::ElementPtr line = elem->GetElement("polyline"); line;
+             line = line->GetNextElement("polyline"))
+        {
+          o << (firstLine ? "" : ", ") << "{\"height\": "
+            << Num(line->Get<double>("height")) << ", \"points\": [";
+          firstLine = false;
+          bool firstPoint = true;
+          if (line->HasElement("point"))
+          {
+            for (sdf::ElementPtr pt = line->GetElement("point"); pt;
+                 pt = pt->GetNextElement("point"))
+            {
+              const auto v = pt->Get<ignition::math::Vector2d>();
+              o << (firstPoint ? "" : ", ") << "[" << Num(v.X()) << ", "
+                << Num(v.Y()) << "]";
+              firstPoint = false;
+            }
+          }
+          o << "]}";
+        }
+        o << "]";
+      }
+      else
+      {
+        o << ", \"type\": \"other\", \"geometry_type\": "
+          << static_cast<int>(_geom.Type());
+      }
+  }
+  o << "}";
+  g_shapes.push_back(o.str());
+}
+
 /////////////////////////////////////////////////
 /// Pose of _child in the frame named _frame, via the SDFormat pose graph.
 template <typename T>
@@ -431,8 +584,7 @@ void WalkModel(const sdf::Model &_model, const Pose3d &_worldPose,
     auto handle = [&](const auto &_elem, const std::string &_kind)
     {
       const sdf::Geometry *geom = _elem.Geom();
-      if (geom == nullptr || geom->Type() != sdf::GeometryType::HEIGHTMAP ||
-          geom->HeightmapShape() == nullptr)
+      if (geom == nullptr)
         return;
       // Collision / visual poses resolve to the model frame; the model's world
       // pose was resolved by the caller (world scope).
@@ -442,6 +594,13 @@ void WalkModel(const sdf::Model &_model, const Pose3d &_worldPose,
         elemInModel = linkInModel * _elem.RawPose();  // raw: relative to link
       // ignition::math 6.10 Pose3: X_OQ = X_OP * X_PQ.
       const Pose3d world = _worldPose * elemInModel;
+      if (geom->Type() != sdf::GeometryType::HEIGHTMAP ||
+          geom->HeightmapShape() == nullptr)
+      {
+        ReportShape(modelName, link->Name(), _kind, _elem.Name(), world,
+            ok ? "semantic" : "raw", *geom);
+        return;
+      }
       ReportHeightmap(modelName, link->Name(), _kind, _elem.Name(), world,
           ok ? "semantic" : "raw", *geom->HeightmapShape());
     };
@@ -581,6 +740,9 @@ int main(int argc, char **argv)
             << ", \"heightmaps\": [";
   for (std::size_t i = 0; i < g_entries.size(); ++i)
     std::cout << (i ? ",\n  " : "\n  ") << g_entries[i];
+  std::cout << "\n], \"shapes\": [";
+  for (std::size_t i = 0; i < g_shapes.size(); ++i)
+    std::cout << (i ? ",\n  " : "\n  ") << g_shapes[i];
   std::cout << "\n]}\n";
   return g_status;
 }

@@ -9,14 +9,22 @@ Placement, from ../shared/REFERENCE.md:
 * Gazebo Classic: a heightmap stays at the world origin whatever the model pose (#2167) and
   ``<pos>`` moves only the visual (#868). The terrain is therefore centred on the world origin and
   a map point (x, y) is the world point (x - cx, y - cy); :class:`Placement` carries (cx, cy).
+
+Walls instead of a heightmap (``world.geometry``: mesh, boxes, polylines): both simulators place
+meshes, boxes and polylines anywhere, so in both the model sits at the world origin, the geometry
+is written in map coordinates, and a map point (x, y) is the world point (x, y). One static model
+with one link holds a ground plane over the map and the walls, from z = 0 to the wall height.
 """
 
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 from lxml import etree
+from numpy.typing import NDArray
 
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap
 
@@ -46,7 +54,8 @@ class Placement:
     """Where the terrain sits in the simulated world.
 
     ``offset`` is subtracted from map coordinates to get world coordinates: (0, 0) for gz-sim,
-    the terrain centre for Gazebo Classic.
+    the terrain centre for Gazebo Classic, (0, 0) for walls in both. ``geometry`` is
+    ``heightmap``, or ``mesh``/``boxes``/``polylines`` for walls (:func:`walls_placement`).
     """
 
     simulator: str
@@ -54,6 +63,7 @@ class Placement:
     sampling: int
     size: tuple[float, float, float]
     offset: tuple[float, float]
+    geometry: str = "heightmap"
 
 
 def placement_for(
@@ -191,6 +201,168 @@ def texture_pngs() -> dict[str, bytes]:
         Image.fromarray(np.full((16, 16, 3), rgb, dtype=np.uint8)).save(buf, format="PNG")
         out[f"{name}.png"] = buf.getvalue()
     return out
+
+
+# --- walls: mesh, boxes, polylines ----------------------------------------------------------
+
+#: Folder of a wall model's mesh files and their stem: meshes/walls.stl, .dae, .obj.
+MESH_DIR = "meshes"
+MESH_STEM = "walls"
+#: Visual colours (RGB 0..1): walls a warm grey, the ground lighter, as on the heightmap textures.
+WALL_RGB = (0.55, 0.5, 0.45)
+GROUND_RGB = (0.8, 0.8, 0.78)
+
+
+@dataclass(frozen=True)
+class Ground:
+    """The floor under the walls: a plane over the grid, in the map (= world) frame.
+
+    ``centre`` (metres) and ``yaw`` (radians) place the plane, ``size`` (metres) is its extent
+    (the grid's); Gazebo's plane collision is infinite, the size only bounds the visual.
+    """
+
+    centre: tuple[float, float]
+    size: tuple[float, float]
+    yaw: float = 0.0
+
+
+def walls_placement(
+    simulator: str, model_name: str, geometry: str, ground: Ground, height: float
+) -> Placement:
+    """Walls sit at the world origin in both simulators: map frame = world frame, offset 0."""
+    return Placement(
+        simulator, model_name, 0, (ground.size[0], ground.size[1], height), (0.0, 0.0), geometry
+    )
+
+
+def _walls_model(
+    p: Placement, ground: Ground, comment: str
+) -> tuple[etree._Element, etree._Element]:
+    """``<sdf><model>`` (static, at the origin) with one link holding the ground plane."""
+    sdf = etree.Element("sdf", version=SDF_VERSION[p.simulator])
+    sdf.append(etree.Comment(comment))
+    model = _sub(sdf, "model", name=p.model_name)
+    _sub(model, "static", "true")
+    link = _sub(model, "link", name="walls_link")
+    pose = _fmt(ground.centre[0], ground.centre[1], 0, 0, 0, ground.yaw)
+    for kind in ("collision", "visual"):
+        el = _sub(link, kind, name=f"ground_{kind}")
+        _sub(el, "pose", pose)
+        plane = _sub(_sub(el, "geometry"), "plane")
+        _sub(plane, "normal", "0 0 1")
+        _sub(plane, "size", _fmt(*ground.size))
+        if kind == "visual":
+            _material(el, GROUND_RGB)
+    return sdf, link
+
+
+def _material(visual: etree._Element, rgb: tuple[float, float, float]) -> None:
+    material = _sub(visual, "material")
+    _sub(material, "ambient", _fmt(*rgb, 1))
+    _sub(material, "diffuse", _fmt(*rgb, 1))
+    _sub(material, "specular", "0.1 0.1 0.1 1")
+
+
+def mesh_model_sdf(p: Placement, ground: Ground, *, comment: str) -> bytes:
+    """``model.sdf`` for walls given as mesh files in the model folder (map coordinates, metres).
+
+    Collision: ``meshes/walls.stl`` (Gazebo Classic's ODE and gz-sim's DART both read STL);
+    visual: ``meshes/walls.dae`` (Classic renders COLLADA, not STL, with materials; gz-sim reads
+    both). The OBJ copy beside them is for other tools.
+    """
+    sdf, link = _walls_model(p, ground, comment)
+    base = f"model://{p.model_name}/{MESH_DIR}/{MESH_STEM}"
+    for kind, ext in (("collision", "stl"), ("visual", "dae")):
+        el = _sub(link, kind, name=f"walls_{kind}")
+        _sub(_sub(_sub(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
+        if kind == "visual":
+            _material(el, WALL_RGB)
+    return _bytes(sdf)
+
+
+def boxes_model_sdf(
+    p: Placement, ground: Ground, boxes: NDArray[np.float64], *, comment: str
+) -> bytes:
+    """``model.sdf`` with one box collision and visual per wall box, all in one static link (a
+    model per box would hit Gazebo's limits on real maps).
+
+    Parameters
+    ----------
+    boxes : float array, shape (K, 5)
+        Per box: centre x, y (metres, map frame = model frame), size x, size y (metres, along
+        the box's own axes) and yaw (radians). Boxes stand on z = 0 and are ``p.size[2]`` high.
+    """
+    sdf, link = _walls_model(p, ground, comment)
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 5)
+    x, y, sx, sy, yaw = (_numbers(b[:, k]) for k in range(5))
+    half, height = _fmt(p.size[2] / 2), _fmt(p.size[2])
+    material = _material_xml(WALL_RGB)
+    # Thousands of identical little elements: written as text and parsed once (10x faster than
+    # one lxml call per element). Every value is a number or a fixed name: nothing to escape.
+    parts = []
+    for i in range(len(b)):
+        pose = f"<pose>{x[i]} {y[i]} {half} 0.0 0.0 {yaw[i]}</pose>"
+        geometry = f"<geometry><box><size>{sx[i]} {sy[i]} {height}</size></box></geometry>"
+        parts.append(f'<collision name="wall_{i}_collision">{pose}{geometry}</collision>')
+        parts.append(f'<visual name="wall_{i}_visual">{pose}{geometry}{material}</visual>')
+    _extend(link, parts)
+    return _bytes(sdf)
+
+
+def polylines_model_sdf(
+    p: Placement,
+    ground: Ground,
+    polygons: Sequence[Sequence[NDArray[np.float64]]],
+    *,
+    comment: str,
+) -> bytes:
+    """``model.sdf`` with one extruded-polyline collision and visual per polygon.
+
+    Parameters
+    ----------
+    polygons : sequence of sequences of float arrays, each shape (N, 2)
+        Per polygon its rings, exterior first then holes, in metres, map frame (= model frame),
+        not closed. Each ring is one ``<polyline>`` of the same ``<geometry>``: Gazebo extrudes
+        all the polylines of a geometry together and leaves out what lies inside an even number
+        of rings (gz-common ``MeshManager::CreateExtrudedPolyline``, triangles whose centroid is
+        inside an even number of rings are dropped), so the holes stay open. Extruded from z = 0
+        to ``p.size[2]``.
+    """
+    sdf, link = _walls_model(p, ground, comment)
+    height = f"<height>{_fmt(p.size[2])}</height>"
+    material = _material_xml(WALL_RGB)
+    parts = []
+    for i, rings in enumerate(polygons):
+        lines = []
+        for ring in rings:
+            xy = _numbers(np.asarray(ring, dtype=np.float64).reshape(-1, 2))
+            points = "".join(
+                f"<point>{u} {v}</point>" for u, v in zip(xy[::2], xy[1::2], strict=True)
+            )
+            lines.append(f"<polyline>{points}{height}</polyline>")
+        geometry = f"<geometry>{''.join(lines)}</geometry>"
+        parts.append(f'<collision name="wall_{i}_collision">{geometry}</collision>')
+        parts.append(f'<visual name="wall_{i}_visual">{geometry}{material}</visual>')
+    _extend(link, parts)
+    return _bytes(sdf)
+
+
+def _numbers(values: NDArray[np.float64]) -> list[str]:
+    """Each value as :func:`_fmt` writes it (row-major)."""
+    return [repr(round(v, 9)) for v in np.asarray(values, dtype=np.float64).ravel().tolist()]
+
+
+def _material_xml(rgb: tuple[float, float, float]) -> str:
+    colour = _fmt(*rgb, 1)
+    return (
+        f"<material><ambient>{colour}</ambient><diffuse>{colour}</diffuse>"
+        "<specular>0.1 0.1 0.1 1</specular></material>"
+    )
+
+
+def _extend(parent: etree._Element, parts: list[str]) -> None:
+    """Append the elements of generated XML text (trusted: numbers and fixed names)."""
+    parent.extend(list(etree.fromstring(f"<parts>{''.join(parts)}</parts>")))
 
 
 def _bytes(root: etree._Element) -> bytes:
