@@ -11,12 +11,18 @@ every edge of the mesh belongs to exactly two faces. Where rings touch at a poin
 contact of two cells) the point has one vertex per sector of material around it, so the mesh
 stays 2-manifold there and the solids merely touch along a vertical line.
 
-Why mapbox-earcut: the caps are polygons with holes (up to thousands of vertices), and earcut is
-the small, fast, widely used ear-clipping triangulator (the C++ header of Mapbox's library behind
-a thin binding, numpy in and out, no other dependency). Two of its habits are undone here: it
-treats coincident points as one (triangle corners at a shared point are mapped to the vertex of
-the sector they lie in), and when it joins a hole to its exterior it drops points that became
-collinear (the triangle edges running through them are split there again).
+Caps: convex polygons without holes (most wall pieces: rectangles) take a fan; the others go to
+earcut, on points moved by a tiny deterministic jitter (:func:`_jitter`), because outlines are
+full of exactly collinear points (the corners of staircases) on which ear clipping gets stuck and
+drops points. Its output is then checked and, where needed, repaired locally (:class:`_Cap`):
+slivers flipped away, T-junctions split, runs of slivers ear-clipped anew; a polygon that still
+cannot be triangulated along its own edges raises. Every face has area: on a grid, at least half
+a square cell (an eighth for simplified outlines).
+
+Why mapbox-earcut: the caps are polygons with holes (up to thousands of vertices) and earcut is
+the small, fast, widely used ear-clipping triangulator (Mapbox's C++ header behind a thin
+binding: numpy in and out, no other dependency, a 77 kB wheel). Constrained Delaunay libraries
+would need less repair but are either large (CGAL) or not free to use (Triangle).
 
 The writers return deterministic bytes: binary STL (float32, what STL holds), Wavefront OBJ and
 COLLADA 1.4.1 (float64 text, Python's shortest repr, which reads back to the same numbers; Z up,
@@ -235,30 +241,51 @@ def _caps(
     count = size[fan_rings] - 2
     lo = np.repeat(start[fan_rings], count)
     i = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count) + 1
-    fans = _sector_corners(xy, np.stack([lo, lo + i, lo + i + 1], axis=1), shared)
-    parts = [fans]
-    owners = [np.repeat(np.nonzero(fan)[0], count)]
+    fans = np.stack([lo, lo + i, lo + i + 1], axis=1)
+    fan_owner = np.repeat(np.nonzero(fan)[0], count)
+    # Earcut for the others, on jittered local coordinates (see _jitter); every check of its
+    # output is done for all polygons at once, the repairs (rare) one polygon at a time.
+    ear_polys = np.nonzero(~fan)[0]
     place = shared.place
-    for k in np.nonzero(~fan)[0].tolist():
+    first_vertex = start[ring_lo]
+    poly_of_vertex = poly_of_ring[ring]
+    local = _jitter(xy - xy[first_vertex[poly_of_vertex]], place, poly_of_vertex, n_poly)
+    parts: list[NDArray[np.int64]] = []
+    for k in ear_polys.tolist():
         r0, r1 = int(ring_lo[k]), int(ring_hi[k])
         p0, p1 = int(start[r0]), int(start[r1])
-        pts = xy[p0:p1] - xy[p0]  # local coordinates keep earcut's arithmetic precise
         ends = (start[r0 + 1 : r1 + 1] - p0).astype(np.uint32)
-        ear = mapbox_earcut.triangulate_float64(_jitter(pts, place[p0:p1]), ends)
-        raw = ear.astype(np.int64).reshape(-1, 3)
-        # Repairs work on points (coincident vertices as one), then each corner at a point
-        # several vertices share takes the vertex of its sector.
-        tri = place[_counter_clockwise(pts, raw) + p0]
-        # A triangle between two copies of one point has no area and no place in the cap.
-        tri = tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])]
-        ring_edges = np.stack([place[p0:p1], place[nxt[p0:p1]]], axis=1)
-        if _needs_repair(xy, tri, ring_edges):
-            cap = _Cap(xy, tri)
-            cap.repair(ring_edges, k)
-            tri = cap.array()
-        tri = _sector_corners(xy, tri, shared)
-        parts.append(tri)
-        owners.append(np.full(len(tri), k))
+        ear = mapbox_earcut.triangulate_float64(local[p0:p1], ends)
+        parts.append(ear.astype(np.int64).reshape(-1, 3) + p0)
+    tri = np.concatenate(parts) if parts else np.zeros((0, 3), dtype=np.int64)
+    owner_of = poly_of_vertex[tri[:, 0]]
+    # Earcut winds all triangles of a polygon the same way: turn them all where that is
+    # clockwise (decided on their total, which rounding cannot flip, unlike a sliver's).
+    clockwise = np.bincount(owner_of, _twice_areas(xy, tri), minlength=n_poly) < 0
+    tri[clockwise[owner_of]] = tri[clockwise[owner_of]][:, ::-1]
+    # Repairs work on points (coincident vertices as one); a triangle between two copies of
+    # one point has no area and no place in the cap.
+    tri = place[tri]
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])
+    tri, owner_of = tri[keep], owner_of[keep]
+    is_ear = ~fan[poly_of_vertex]
+    ring_edges = np.stack([place[is_ear], place[nxt[is_ear]]], axis=1)
+    ring_owner = poly_of_vertex[is_ear]
+    broken = _needs_repair(
+        xy, tri, owner_of, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=n_poly
+    )
+    if broken.any():
+        fixed = [tri[~broken[owner_of]]]
+        owners = [owner_of[~broken[owner_of]]]
+        for k in np.nonzero(broken)[0].tolist():
+            cap = _Cap(xy, tri[owner_of == k])
+            cap.repair(ring_edges[ring_owner == k], k)
+            fixed.append(cap.array())
+            owners.append(np.full(len(fixed[-1]), k))
+        tri, owner_of = np.concatenate(fixed), np.concatenate(owners)
+    # Each corner at a point several vertices share takes the vertex of its sector.
+    parts = [_sector_corners(xy, np.concatenate([fans, tri]), shared)]
+    owners = [np.concatenate([fan_owner, owner_of])]
     tri = np.concatenate(parts)
     polygon = np.concatenate(owners)
     # Each polygon's triangles must add up to exactly its area, none turned over.
@@ -277,7 +304,9 @@ def _caps(
     return tri
 
 
-def _jitter(pts: NDArray[np.float64], place: NDArray[np.int64]) -> NDArray[np.float64]:
+def _jitter(
+    pts: NDArray[np.float64], place: NDArray[np.int64], polygon: NDArray[np.int64], n_poly: int
+) -> NDArray[np.float64]:
     """The points moved by a tiny deterministic amount, for earcut only; points with the same
     ``place`` (copies of one point) move together, so rings that touch still just touch.
 
@@ -285,18 +314,29 @@ def _jitter(pts: NDArray[np.float64], place: NDArray[np.int64]) -> NDArray[np.fl
     no ear there, gets stuck and drops points, leaving triangle edges through vertices. Moved
     into general position it triangulates cleanly; back at the true points its triangles are
     the same or have no area at all (slivers, flipped away by :class:`_Cap`), never turned
-    over: the move, ``1e-3 m^2 / D`` for the shortest edge ``m`` and the extent ``D``, changes
-    a triangle's area by far less than the smallest area that three outline points that are
-    not collinear span (an eighth of a square cell for points on the half-cell lattice).
+    over: the move, ``1e-3 m^2 / D`` for the shortest edge ``m`` and the extent ``D`` of each
+    polygon (``polygon`` numbers the points' polygons, in order), changes a triangle's area by
+    far less than the smallest area that three outline points that are not collinear span (an
+    eighth of a square cell for points on the half-cell lattice).
     """
-    edges = np.diff(np.vstack([pts, pts[:1]]), axis=0)
-    shortest = float(np.sqrt(np.einsum("ij,ij->i", edges, edges).min()))
-    extent = float(np.ptp(pts, axis=0).max()) or 1.0
+    # Successive points across rings count as edges too: that can only make the move smaller.
+    edges = np.diff(pts, axis=0, append=pts[:1])
+    lengths = np.einsum("ij,ij->i", edges, edges)
+    lengths[(lengths == 0) | (np.append(polygon[1:], -1) != polygon)] = np.inf
+    shortest = np.full(n_poly, np.inf)
+    np.minimum.at(shortest, polygon, lengths)
+    lo = np.full((n_poly, 2), np.inf)
+    hi = np.full((n_poly, 2), -np.inf)
+    np.minimum.at(lo, polygon, pts)
+    np.maximum.at(hi, polygon, pts)
+    extent = (hi - lo).max(axis=1)
+    step = 1e-3 * shortest / np.where(extent > 0, extent, 1.0)  # shortest is squared
+    step[~np.isfinite(step)] = 0.0
     # A hash of the place, not a random draw: the same bytes every run. Not a multiplicative
     # hash either: that is linear, and evenly numbered points on a line would stay on one.
     key = place.astype(np.uint64)[:, None] * np.uint64(2) + np.array([0, 1], dtype=np.uint64)
     unit = (_splitmix64(key) >> np.uint64(11)).astype(np.float64) / float(1 << 53) * 2.0 - 1.0
-    moved: NDArray[np.float64] = pts + unit * (1e-3 * shortest * shortest / extent)
+    moved: NDArray[np.float64] = pts + unit * step[polygon][:, None]
     return moved
 
 
@@ -331,15 +371,6 @@ def _twice_areas(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.
     return area2
 
 
-def _counter_clockwise(pts: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Earcut winds all triangles of a polygon the same way: turn them all if that is
-    clockwise (decided on their total, which rounding cannot flip, unlike a sliver's)."""
-    if _twice_areas(pts, tri).sum() < 0:
-        turned: NDArray[np.int64] = tri[:, ::-1].copy()
-        return turned
-    return tri
-
-
 def _sliver_mask(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.bool_]:
     """Triangles without area (up to rounding, relative to their longest edge)."""
     p = xy[tri]
@@ -350,20 +381,37 @@ def _sliver_mask(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.
 
 
 def _needs_repair(
-    xy: NDArray[np.float64], tri: NDArray[np.int64], ring_edges: NDArray[np.int64]
-) -> bool:
-    """Whether a cap has slivers, or an edge that is neither an outline edge nor shared with
-    the triangle across, or misses an outline edge (see :class:`_Cap`)."""
-    if _sliver_mask(xy, tri).any():
-        return True
+    xy: NDArray[np.float64],
+    tri: NDArray[np.int64],
+    owner: NDArray[np.int64],
+    *,
+    ring_edges: NDArray[np.int64],
+    ring_owner: NDArray[np.int64],
+    n_poly: int,
+) -> NDArray[np.bool_]:
+    """Per polygon: whether its cap has a sliver, an edge that is neither an outline edge nor
+    shared with the triangle across, or misses an outline edge (see :class:`_Cap`)."""
+    broken = np.zeros(n_poly, dtype=bool)
+    broken[owner[_sliver_mask(xy, tri)]] = True
     n = len(xy)
     u, v = tri.reshape(-1), tri[:, [1, 2, 0]].reshape(-1)
-    ring = ring_edges[:, 0] * n + ring_edges[:, 1]
-    have = np.sort(u * n + v)
-    if not np.isin(ring, have, assume_unique=False).all():
-        return True
-    lonely = ~np.isin(v * n + u, have)
-    return bool(lonely.sum() != len(ring) or not np.isin(u[lonely] * n + v[lonely], ring).all())
+    tri_owner = np.repeat(owner, 3)
+    have = np.sort((tri_owner * n + u) * n + v)
+    ring = (ring_owner * n + ring_edges[:, 0]) * n + ring_edges[:, 1]
+    broken[ring_owner[~_member(ring, have)]] = True
+    lonely = ~_member((tri_owner * n + v) * n + u, have)
+    lonely &= ~_member((tri_owner * n + u) * n + v, np.sort(ring))
+    broken[tri_owner[lonely]] = True
+    return broken
+
+
+def _member(keys: NDArray[np.int64], sorted_keys: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Whether each key is in ``sorted_keys`` (sorted ascending)."""
+    if len(sorted_keys) == 0:
+        return np.zeros(len(keys), dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
+    found: NDArray[np.bool_] = sorted_keys[pos] == keys
+    return found
 
 
 Tri = tuple[int, int, int]
@@ -459,6 +507,12 @@ class _Cap:
         )
         return abs(cross) <= 1e-9 * longest
 
+    def _slivers(self) -> list[int]:
+        """Indices of the slivers (see :meth:`_sliver`), found with numpy."""
+        live = [t for t, tri in enumerate(self.tris) if tri is not None]
+        tri = np.array([self.tris[t] for t in live], dtype=np.int64).reshape(-1, 3)
+        return [live[i] for i in np.nonzero(_sliver_mask(self.xy, tri))[0].tolist()]
+
     def _edges_of(self, t: int) -> tuple[tuple[int, int], ...]:
         tri = self.tris[t]
         return () if tri is None else _tri_edges(tri)
@@ -466,7 +520,7 @@ class _Cap:
     def _flip_slivers(self) -> bool:
         """Flip every sliver that has a proper triangle across its longest edge."""
         changed = False
-        queue = [t for t in range(len(self.tris)) if self._sliver(t)]
+        queue = self._slivers()
         for _ in range(10 * len(self.tris)):
             if not queue:
                 break
@@ -587,12 +641,17 @@ class _Cap:
         for _ in range(4 * len(ring) + 8):
             if self._flip_slivers():
                 continue
-            slivers = [t for t in range(len(self.tris)) if self._sliver(t)]
+            slivers = self._slivers()
             if any(self._retriangulate(t, grow) for t in slivers for grow in (1, 2, 3)):
                 continue
             if not self._close_t_junctions(ring):
                 break
-        if _needs_repair(self.xy, self.array(), ring_edges):
+        tri = self.array()
+        zeros = np.zeros(len(tri), dtype=np.int64)
+        ring_owner = np.zeros(len(ring_edges), dtype=np.int64)
+        if _needs_repair(
+            self.xy, tri, zeros, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=1
+        )[0]:
             raise ValueError(
                 f"polygon {polygon} cannot be triangulated along its own edges"
                 " (rings crossing, or a hole outside its exterior)"

@@ -489,15 +489,16 @@ def simplify(
     Returns
     -------
     list of Polygon
-        Same polygons and holes, in the same order, with fewer vertices. Vertices are points of
-        the exact outline: kept corners, or cell-edge midpoints half a cell from a corner (so a
-        staircase can become one straight edge). Guarantees: rings stay simple; rings touch
-        only at diagonal-contact corners that both kept; holes stay inside their exteriors,
-        islands inside their holes; and ``rasterize`` gives exactly the same cells as for the
-        input (no cell centre lies in a region a straightened edge sweeps over, boundary
-        included). Every ring encloses a cell centre, so none collapses; a ring that ends with
-        fewer than three vertices would be dropped (with its holes), which only polygons that
-        enclose no cell centre can cause.
+        Same polygons and holes, in the same order, usually with fewer vertices. Vertices are
+        points of the exact outline: kept corners, or cell-edge midpoints half a cell from a
+        corner (so a staircase can become one straight edge). Guarantees: rings stay simple;
+        rings touch only at diagonal-contact corners that both kept; holes stay inside their
+        exteriors, islands inside their holes; ``rasterize`` gives exactly the same cells as
+        for the input (no cell centre lies in a region a straightened edge sweeps over); and
+        no new edge passes closer than 0.15 cell to a cell centre, so walls and gaps one cell
+        wide keep at least 0.3 cell. Every ring encloses a cell centre, so none collapses; a
+        ring that ends with fewer than three vertices would be dropped (with its holes), which
+        only polygons that enclose no cell centre can cause.
 
     Raises
     ------
