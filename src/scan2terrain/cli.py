@@ -603,6 +603,11 @@ class ProgressBar:
         self._bar.set_postfix_str(f"{rate * per_msg / 1e6:.2f} M points/s", refresh=False)
 
 
+def _minus(v: float) -> str:
+    """'- 29.125' or '+ 0.125': a coordinate minus ``v``, written for a human."""
+    return f"- {v:g}" if v >= 0 else f"+ {-v:g}"
+
+
 def report(result: Any) -> str:
     """How to open what was written, for a human."""
     out = result.out
@@ -636,7 +641,7 @@ def report(result: Any) -> str:
                 "  Gazebo Classic:",
                 f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
                 "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
-                f"    a map point (x, y) is world (x {-ox:+g}, y {-oy:+g}).",
+                f"    a map point (x, y) is world (x {_minus(ox)}, y {_minus(oy)}).",
             ]
         if w.map_yaml is not None:
             lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
