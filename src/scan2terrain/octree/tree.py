@@ -98,7 +98,7 @@ class VoxelOctree:
         threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         self._bits = np.zeros((1024, 8 * (1 + threads)), dtype=np.uint64)
         self._block_xyz = np.zeros((1024, 3), dtype=np.int32)
-        self._stamp = np.empty(1024, dtype=np.int64)
+        self._stamp = np.full(1024, -1, dtype=np.int64)
         self._table_keys = np.full(4096, K.EMPTY, dtype=np.int64)
         self._table_slots = np.zeros(4096, dtype=np.int32)
         self._counts = np.zeros(3, dtype=np.int64)  # see _kernels.N_BLOCKS, N_TOUCHED, STAMP
@@ -260,12 +260,15 @@ class VoxelOctree:
                 ("_values", np.empty),
                 ("_bits", np.zeros),
                 ("_block_xyz", np.zeros),
-                ("_stamp", np.empty),
             ):
                 a = getattr(self, name)
                 b = make((new, *a.shape[1:]), dtype=a.dtype)
                 b[:n_blocks] = a[:n_blocks]
                 setattr(self, name, b)
+            # -1: touched by no scan yet, whichever path allocates the block (8 bytes a block).
+            stamp = np.full(new, -1, dtype=np.int64)
+            stamp[:n_blocks] = self._stamp[:n_blocks]
+            self._stamp = stamp
         elif status == K.NEED_TOUCHED:
             n = int(self._counts[K.N_TOUCHED])
             touched = np.empty(2 * len(self._touched), dtype=np.int64)
