@@ -324,10 +324,9 @@ def cloud2world(
 
 
 def _fixed_pose(cfg: Config) -> Transform:
-    from scan2terrain.readers.poses import mount
+    from scan2terrain.readers.scans import pose6
 
-    p = cfg.scans.pose or [0.0] * 6
-    return mount(*p[:3], roll=p[3], pitch=p[4], yaw=p[5])
+    return pose6(cfg.scans.pose or [0.0] * 6)
 
 
 # --- convert -----------------------------------------------------------------------------------

@@ -31,7 +31,7 @@ at identity.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -276,6 +276,12 @@ def read_tf(bag: Bag, cfg: ScansConfig) -> TfBuffer:
     return tf
 
 
+def pose6(values: Sequence[float]) -> Transform:
+    """A config pose [x, y, z, roll, pitch, yaw] (metres, radians; ``scans.pose``/``mount``)."""
+    x, y, z, roll, pitch, yaw = values
+    return mount(x, y, z, roll=roll, pitch=pitch, yaw=yaw)
+
+
 def _stamp(msg: Any, bag_ns: int) -> int:
     st = msg.header.stamp
     ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
@@ -297,7 +303,7 @@ class _Poser:
             return
         if plan.poses == "fixed":
             assert cfg.pose is not None
-            self.fixed = mount(*cfg.pose[:3], roll=cfg.pose[3], pitch=cfg.pose[4], yaw=cfg.pose[5])
+            self.fixed = pose6(cfg.pose)
             return
         if plan.poses == "odom":
             assert plan.odom_topic is not None
@@ -315,8 +321,7 @@ class _Poser:
         tf = plan.tf or (read_tf(bag, cfg) if bag.topics_of_type(TF_TYPES) else None)
         for topic, frame in plan.sensor_frames.items():
             if cfg.mount is not None:
-                m = cfg.mount
-                self.mounts[topic] = mount(*m[:3], roll=m[3], pitch=m[4], yaw=m[5])
+                self.mounts[topic] = pose6(cfg.mount)
                 continue
             found = None
             if tf is not None and frame in tf.frames() and base in tf.frames():
