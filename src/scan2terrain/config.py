@@ -64,6 +64,9 @@ class TerrainConfig:
     upsample: int = 1
     #: 8 (every Gazebo) or 16 (gz-sim Garden and newer).
     bit_depth: int = 8
+    #: Largest heightmap side (2^n+1 pixels); a bigger grid is written as terrain tiles of this
+    #: side placed edge to edge, neighbours sharing their border samples.
+    max_side: int = 4097
 
 
 @dataclass
@@ -90,6 +93,9 @@ class WorldConfig:
 class OutputConfig:
     preview: bool = True
     map_yaml: bool = True
+    #: Largest map_server image side (pixels); a bigger map is written as tiles, each with its
+    #: own YAML and origin.
+    map_max_side: int = 16384
 
 
 @dataclass
@@ -169,6 +175,23 @@ class ScansConfig:
 
 
 @dataclass
+class StreamConfig:
+    """Streaming, tiled rasterisation of end points straight into grid columns (no octree), for
+    clouds larger than memory; the same work on Dask with ``workers`` or ``scheduler``."""
+
+    #: Off: points go through the octree (ray casting possible). On: end points only, streamed.
+    enabled: bool = False
+    #: Points read and rasterised at a time: the fixed working set.
+    chunk_points: int = 2_000_000
+    #: Grid tiles are this many cells a side: the unit of merging and of the result's memory.
+    tile_cells: int = 1024
+    #: Dask: a local cluster of this many worker processes; 0 = no Dask (single process).
+    workers: int = 0
+    #: Dask: an existing scheduler's address (tcp://HOST:PORT); workers must reach the inputs.
+    scheduler: str | None = None
+
+
+@dataclass
 class DemConfig:
     """Digital elevation models (dem2world)."""
 
@@ -191,6 +214,7 @@ class Config:
     octree: OctreeConfig = field(default_factory=OctreeConfig)
     scans: ScansConfig = field(default_factory=ScansConfig)
     dem: DemConfig = field(default_factory=DemConfig)
+    stream: StreamConfig = field(default_factory=StreamConfig)
     #: Refuse images with more pixels than this (decompression bombs).
     max_pixels: int = 1 << 28
 
@@ -313,6 +337,30 @@ class Config:
             "scans.start",
             sc.start,
             "<= scans.end",
+        )
+        t = c.terrain
+        _check(
+            t.max_side >= 3 and (t.max_side - 1) & (t.max_side - 2) == 0,
+            "terrain.max_side",
+            t.max_side,
+            "2^n+1 >= 3",
+        )
+        _check(c.output.map_max_side >= 1, "output.map_max_side", c.output.map_max_side, ">= 1")
+        st = c.stream
+        _check(st.chunk_points >= 1, "stream.chunk_points", st.chunk_points, ">= 1")
+        _check(st.tile_cells >= 1, "stream.tile_cells", st.tile_cells, ">= 1")
+        _check(st.workers >= 0, "stream.workers", st.workers, ">= 0")
+        _check(
+            st.scheduler is None or "://" in st.scheduler,
+            "stream.scheduler",
+            st.scheduler,
+            "an address such as tcp://HOST:8786",
+        )
+        _check(
+            not (st.workers and st.scheduler),
+            "stream.workers",
+            st.workers,
+            "0 when stream.scheduler is given (one or the other)",
         )
         _check(
             c.dem.resolution is None or c.dem.resolution > 0,
