@@ -378,6 +378,7 @@ def _bag_commands(sub: Any) -> None:
     _geometry_options(b)
     _octree_options(b)
     _scan_options(b, bag=True)
+    _stream_options(b)
     _progress_option(b)
 
     c = sub.add_parser(
@@ -389,7 +390,9 @@ def _bag_commands(sub: Any) -> None:
         epilog="examples:\n"
         "  scan2terrain cloud2world scan.pcd -o out --z-min 0.1 --z-max 1.5\n"
         "  scan2terrain cloud2world site.laz -o terrain --las-classes 2 --grid height "
-        "--resolution 1\n",
+        "--resolution 1\n"
+        "  scan2terrain cloud2world tiles/*.laz -o city --grid height --resolution 0.5 "
+        "--stream --workers 2\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument("clouds", type=Path, nargs="+", help="point-cloud file(s)")
@@ -397,6 +400,8 @@ def _bag_commands(sub: Any) -> None:
     _geometry_options(c)
     _octree_options(c)
     _scan_options(c, bag=False)
+    _stream_options(c)
+    _progress_option(c)
 
     v = sub.add_parser(
         "convert",
@@ -435,6 +440,48 @@ def _bag_commands(sub: Any) -> None:
     _scan_options(n, bag=True)
     n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+
+def _stream_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group(
+        "streaming and Dask (end points straight into grid tiles, no octree; memory bounded by "
+        "the grid)"
+    )
+    g.add_argument(
+        "--stream",
+        action="store_const",
+        const=True,
+        dest="stream.enabled",
+        help="stream end points into tiles instead of the octree (clouds larger than memory)",
+    )
+    g.add_argument(
+        "--workers",
+        type=int,
+        dest="stream.workers",
+        metavar="N",
+        help="run the streamed work on a local Dask cluster of N worker processes",
+    )
+    g.add_argument(
+        "--scheduler",
+        dest="stream.scheduler",
+        metavar="ADDRESS",
+        help="run the streamed work on an existing Dask cluster (tcp://HOST:8786); its workers "
+        "must reach the input paths",
+    )
+    g.add_argument(
+        "--chunk-points",
+        type=int,
+        dest="stream.chunk_points",
+        metavar="N",
+        help="points read at a time (default 2000000)",
+    )
+    g.add_argument(
+        "--tile-cells",
+        type=int,
+        dest="stream.tile_cells",
+        metavar="N",
+        help="grid tile side in cells, a power of two (default 512)",
+    )
 
 
 def _progress_option(p: argparse.ArgumentParser) -> None:
@@ -558,14 +605,25 @@ def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
         if not args.quiet:
             print(text)
         return 0
+    show = sys.stderr.isatty() if args.progress is None else args.progress
     if args.command == "cloud2world":
-        result = ingest.cloud2world(args.clouds, args.out, cfg, overwrite=args.overwrite)
+        with TaskBar(enabled=show and not args.quiet) as tasks:
+            result = ingest.cloud2world(
+                args.clouds, args.out, cfg, overwrite=args.overwrite, stream_progress=tasks.update
+            )
     else:
-        show = sys.stderr.isatty() if args.progress is None else args.progress
-        with ProgressBar(enabled=show and not args.quiet) as bar:
+        with (
+            ProgressBar(enabled=show and not args.quiet) as bar,
+            TaskBar(enabled=show and not args.quiet) as tasks,
+        ):
             progress = bar.update if bar.enabled else None  # no bar: no counting pass
             result = ingest.bag2world(
-                args.bag, args.out, cfg, overwrite=args.overwrite, progress=progress
+                args.bag,
+                args.out,
+                cfg,
+                overwrite=args.overwrite,
+                progress=progress,
+                stream_progress=tasks.update,
             )
     if not args.quiet:
         print(report(result))
@@ -601,6 +659,37 @@ class ProgressBar:
         rate = self._bar.format_dict.get("rate") or 0.0
         per_msg = counts.points / max(counts.inserted, 1)
         self._bar.set_postfix_str(f"{rate * per_msg / 1e6:.2f} M points/s", refresh=False)
+
+
+class TaskBar:
+    """Streamed tasks done and points/s on stderr (tqdm)."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._bar: Any = None
+        self._last = 0
+
+    def __enter__(self) -> TaskBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+    def update(self, done: int, total: int, points: int) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=total, unit="task", file=sys.stderr, dynamic_ncols=True, mininterval=0.25
+            )
+        self._bar.update(done - self._last)
+        self._last = done
+        elapsed = self._bar.format_dict.get("elapsed") or 0.0
+        if elapsed > 0:
+            self._bar.set_postfix_str(f"{points / elapsed / 1e6:.2f} M points/s", refresh=False)
 
 
 def _minus(v: float) -> str:

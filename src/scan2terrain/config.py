@@ -183,8 +183,9 @@ class StreamConfig:
     enabled: bool = False
     #: Points read and rasterised at a time: the fixed working set.
     chunk_points: int = 2_000_000
-    #: Grid tiles are this many cells a side: the unit of merging and of the result's memory.
-    tile_cells: int = 1024
+    #: Grid tiles are this many cells a side (a power of two): the unit of allocation, merging
+    #: and of what a Dask task sends back (24 bytes a cell).
+    tile_cells: int = 512
     #: Dask: a local cluster of this many worker processes; 0 = no Dask (single process).
     workers: int = 0
     #: Dask: an existing scheduler's address (tcp://HOST:PORT); workers must reach the inputs.
@@ -348,7 +349,12 @@ class Config:
         _check(c.output.map_max_side >= 1, "output.map_max_side", c.output.map_max_side, ">= 1")
         st = c.stream
         _check(st.chunk_points >= 1, "stream.chunk_points", st.chunk_points, ">= 1")
-        _check(st.tile_cells >= 1, "stream.tile_cells", st.tile_cells, ">= 1")
+        _check(
+            st.tile_cells >= 1 and st.tile_cells & (st.tile_cells - 1) == 0,
+            "stream.tile_cells",
+            st.tile_cells,
+            "a power of two",
+        )
         _check(st.workers >= 0, "stream.workers", st.workers, ">= 0")
         _check(
             st.scheduler is None or "://" in st.scheduler,

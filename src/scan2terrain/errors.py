@@ -22,6 +22,10 @@ class InputError(Scan2TerrainError, ValueError):
         self.problem = problem
         super().__init__(f"{path}: {problem}" if path is not None else problem)
 
+    def __reduce__(self) -> tuple[type[InputError], tuple[Path | None, str]]:
+        # Pickled with its two arguments, so it crosses to and from Dask workers intact.
+        return (type(self), (self.path, self.problem))
+
 
 class ConfigError(Scan2TerrainError, ValueError):
     """A configuration value is out of range or unknown."""

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
-from scan2terrain.errors import InputError
+from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.pipeline import Result, occupancy_world, refuse_existing, voxels_world
 from scan2terrain.types import OccupancyGrid, Pose2D, Transform
 
@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 
 #: Called after every scan: (counts so far, scans expected in total).
 Progress = Callable[["ScanCounts", int], None]
+#: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
+StreamProgress = Callable[[int, int, int], None]
 #: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
 FAR = 1000.0
 #: The octree's keys reach this many voxels either side of the origin (OctoMap's depth 16).
@@ -47,6 +49,20 @@ class Ingest:
     scans: int
     points: int
     notes: tuple[str, ...]
+
+
+def streaming(cfg: Config) -> bool:
+    """End points streamed into tiles (``stream.enabled``, implied by Dask workers or a
+    scheduler) instead of the octree; refuses an explicit ray-casting request."""
+    st = cfg.stream
+    if not (st.enabled or st.workers or st.scheduler):
+        return False
+    if cfg.scans.insert == "raycast":
+        raise ConfigError(
+            "scans.insert raycast cannot be streamed or distributed (partial octrees do not "
+            "merge exactly): drop --stream/--workers/--scheduler, or insert end points"
+        )
+    return True
 
 
 def new_tree(cfg: Config) -> VoxelOctree:
@@ -68,6 +84,7 @@ def bag2world(
     *,
     overwrite: bool = False,
     progress: Progress | None = None,
+    stream_progress: StreamProgress | None = None,
 ) -> Result:
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
     from scan2terrain.octree.bt import bt_bytes
@@ -75,6 +92,14 @@ def bag2world(
     from scan2terrain.readers.scans import map_message, occupancy_from_message, plan_bag
 
     refuse_existing(out, overwrite)
+    if streaming(cfg):
+        from scan2terrain import stream
+
+        with open_bag(list(bags)) as bag:
+            is_map = plan_bag(bag, cfg.scans).map_topic is not None
+        if not is_map:
+            streamed = stream.stream_bag(bags, cfg, stream_progress)
+            return stream.streamed_world(streamed, Path(bags[0]), out, cfg, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans)
         if plan.map_topic is not None:
@@ -269,7 +294,12 @@ def read_clouds(
 
 
 def cloud2world(
-    files: Sequence[Path], out: Path, cfg: Config, *, overwrite: bool = False
+    files: Sequence[Path],
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool = False,
+    stream_progress: StreamProgress | None = None,
 ) -> Result:
     """Point-cloud files to a world folder: each file one insertion (end points only, or ray
     cast from ``scans.pose`` when ``scans.insert`` is raycast: the cloud is then in the sensor
@@ -277,6 +307,11 @@ def cloud2world(
     from scan2terrain.octree.bt import bt_bytes
 
     refuse_existing(out, overwrite)
+    if streaming(cfg):
+        from scan2terrain import stream
+
+        streamed = stream.stream_clouds(files, cfg, stream_progress)
+        return stream.streamed_world(streamed, Path(files[0]), out, cfg, overwrite=overwrite)
     clouds, _, notes = read_clouds(files, cfg)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)

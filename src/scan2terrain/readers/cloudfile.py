@@ -27,9 +27,10 @@ from __future__ import annotations
 import io
 import re
 import warnings
-from collections.abc import Collection
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -532,6 +533,106 @@ def _read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np
 
 class _Truncated(Exception):
     pass
+
+
+@dataclass(frozen=True)
+class LasInfo:
+    """A LAS/LAZ header: point count and bounds (the file's units) without reading points."""
+
+    path: Path
+    points: int
+    mins: tuple[float, float, float]
+    maxs: tuple[float, float, float]
+    format: str
+
+
+def las_info(path: Path | str) -> LasInfo:
+    """The header of a LAS/LAZ file. Raises InputError for a missing, empty, foreign or
+    truncated (uncompressed: shorter than its header's points need) file."""
+    import laspy
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "point-cloud file not found")
+    try:
+        size = path.stat().st_size
+        if size == 0:
+            raise InputError(path, "empty file")
+        with laspy.open(path) as reader:
+            h = reader.header
+            n = int(h.point_count)
+            if not h.are_points_compressed:
+                need = int(h.offset_to_point_data) + n * int(h.point_format.size)
+                if size < need:
+                    raise InputError(
+                        path,
+                        f"truncated LAS file: {n} points of {h.point_format.size} bytes need "
+                        f"{need} bytes, the file has {size}",
+                    )
+            version = f"{h.version.major}.{h.version.minor}"
+            fmt = f"{path.suffix.lower()[1:]} {version} point format {h.point_format.id}"
+            mins = tuple(float(v) for v in h.mins)
+            maxs = tuple(float(v) for v in h.maxs)
+    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from None
+    return LasInfo(path, n, mins, maxs, fmt)  # type: ignore[arg-type]
+
+
+def iter_las(
+    path: Path | str,
+    *,
+    start: int = 0,
+    count: int | None = None,
+    step: int = LAS_CHUNK,
+    las_classes: Collection[int] | None = None,
+) -> Iterator[NDArray[np.float64]]:
+    """Points ``[start, start + count)`` of a LAS/LAZ file (``count`` None: to the end), ``step``
+    at a time, as float64 (n, 3) in the file's units (``X * scale + offset``, as laspy computes
+    them), of the requested classes only. Non-finite points are not possible in LAS. Raises
+    InputError naming the file for unreadable or truncated data."""
+    import laspy
+
+    path = Path(path)
+    classes = None if las_classes is None else _classes(path, path.suffix.lower(), las_classes)
+    want = -1
+    seen = 0
+    try:
+        with laspy.open(path) as reader:
+            total = int(reader.header.point_count)
+            want = total - start if count is None else min(count, total - start)
+            if start:
+                reader.seek(start)
+            while seen < want:
+                chunk = reader.read_points(min(step, want - seen))
+                if len(chunk) == 0:
+                    break
+                seen += len(chunk)
+                xyz = _xyz(chunk)
+                if classes is not None:
+                    xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
+                yield xyz
+    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from None
+    if seen != want:
+        raise InputError(
+            path, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
+        )
+
+
+def _xyz(points: Any) -> NDArray[np.float64]:
+    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, computed into one array
+    (no per-axis temporaries) exactly as laspy scales: ``X * scale + offset``."""
+    out = np.empty((len(points), 3), dtype=np.float64)
+    scales, offsets = points.scales, points.offsets
+    for axis, name in enumerate("XYZ"):
+        col = out[:, axis]
+        np.multiply(points.array[name], scales[axis], out=col)
+        col += offsets[axis]
+    return out
 
 
 # --- shared ---------------------------------------------------------------------------------

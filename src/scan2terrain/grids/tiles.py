@@ -1,0 +1,245 @@
+"""Column statistics of points, kept in tiles that merge exactly: the streaming 2.5D grid.
+
+Points go straight into grid columns, no octree: each cell of the global lattice (resolution
+``r``; cell ``(row, col) = (floor(y / r), floor(x / r))``, the octree's voxel columns) keeps the
+number of points whose z lies in the band, their integer z sum (``round(z * SUM_SCALE)``, for the
+mean) and their float32 minimum and maximum. Every one of these merges exactly and in any order
+(integer addition, min, max), so a grid built from any split of the points, merged in any order,
+on one process or many, is the same grid, bit for bit.
+
+Cells live in tiles of ``tile x tile`` cells, allocated when a point first lands in them, so
+memory follows the area covered, not the number of points: a :class:`TileSet` is the output grid
+(24 bytes a cell) plus the chunk being added.
+
+Heights are the points' own z (as PDAL's ``writers.gdal`` and CloudCompare's rasteriser give
+them), not voxel centres; the z band tests the points' z. The mean is exact to 1/SUM_SCALE m.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.grids import _tile_kernels as K
+from scan2terrain.grids.projection import ColumnStats
+from scan2terrain.types import OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
+
+#: Heights are summed as integers in units of 1/SUM_SCALE m (2^-14 m, 0.06 mm): integer sums
+#: are associative, float sums are not. int64 holds 5.6e14 m of summed height per cell.
+SUM_SCALE = 16384.0
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """The grid every partial result shares: cell size (metres), tile side (cells) and the z band
+    (metres, inclusive) of the points that count."""
+
+    resolution: float
+    tile: int = 512
+    z_min: float = -math.inf
+    z_max: float = math.inf
+
+    def __post_init__(self) -> None:
+        if not (self.resolution > 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"resolution must be a positive number of metres: {self.resolution}")
+        if self.tile < 1 or self.tile & (self.tile - 1):
+            raise ValueError(f"tile must be a power of two (cells): {self.tile}")
+        if math.isnan(self.z_min) or math.isnan(self.z_max) or self.z_min > self.z_max:
+            raise ValueError(f"need z_min <= z_max: {self.z_min}, {self.z_max}")
+
+
+class TileSet:
+    """Per-cell count, z sum, min and max of points, in tiles of the lattice.
+
+    Storage: ``cells`` int64 ``(n_tiles, tile * tile, 3)``, one 24-byte record per cell: count,
+    z sum (units of 1/SUM_SCALE m), then float32 min and max in the last word (read through
+    :attr:`count`, :attr:`zsum`, :attr:`zmin`, :attr:`zmax`; min/max meaningful where
+    count > 0). ``index`` maps a tile ``(tile_row, tile_col)`` to its row. Rows beyond
+    ``len(index)`` are spare capacity: zeroed virtual memory that costs nothing until written.
+    """
+
+    def __init__(self, lattice: Lattice) -> None:
+        self.lattice = lattice
+        self.index: dict[tuple[int, int], int] = {}
+        self.cells: NDArray[np.int64] = np.zeros((0, lattice.tile**2, 3), dtype=np.int64)
+
+    @property
+    def count(self) -> NDArray[np.int64]:
+        return self.cells[..., 0]
+
+    @property
+    def zsum(self) -> NDArray[np.int64]:
+        return self.cells[..., 1]
+
+    @property
+    def zmin(self) -> NDArray[np.float32]:
+        return self.cells.view(np.float32)[..., 4]
+
+    @property
+    def zmax(self) -> NDArray[np.float32]:
+        return self.cells.view(np.float32)[..., 5]
+
+    @property
+    def points(self) -> int:
+        """Points counted so far (in the band)."""
+        return int(self.count[: len(self.index)].sum())
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the tiles in use."""
+        return int(self.cells[: len(self.index)].nbytes)
+
+    def __getstate__(self) -> dict[str, object]:
+        # Only the tiles in use travel (to and from Dask workers), not the spare capacity.
+        return {
+            "lattice": self.lattice,
+            "index": self.index,
+            "cells": self.cells[: len(self.index)].copy(),
+        }
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+
+    # --- adding -------------------------------------------------------------------------------
+
+    def add_points(self, points: NDArray[np.floating]) -> int:
+        """Count every point (x, y, z, metres, shape (N, 3)) whose z is in the band; non-finite
+        points are skipped. Returns how many counted."""
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
+        lat = self.lattice
+        inv = 1.0 / lat.resolution
+        x0, y0, x1, y1, n = K.extent(pts, lat.z_min, lat.z_max)
+        if n == 0:
+            return 0
+        shift = lat.tile.bit_length() - 1
+        # floor(v / r) is monotonic in v: the extreme points hold the extreme tiles.
+        tr0, tr1 = (math.floor(v * inv) >> shift for v in (y0, y1))
+        tc0, tc1 = (math.floor(v * inv) >> shift for v in (x0, x1))
+        # A table over the chunk's tile extent: 8 bytes per tile, while the grid those tiles
+        # would become is >= 17 bytes per *cell*, so the table never dominates.
+        flags = np.ones((tr1 - tr0 + 1, tc1 - tc0 + 1), dtype=np.uint8)
+        if flags.size > 1:
+            flags[:] = 0
+            K.flag_tiles(pts, inv, shift, lat.z_min, lat.z_max, tr0, tc0, flags)
+        slots = np.full(flags.shape, -1, dtype=np.int64)
+        for r, c in zip(*np.nonzero(flags), strict=True):
+            slots[r, c] = self._slot((int(r) + tr0, int(c) + tc0))
+        cells = self.cells
+        K.accumulate(
+            pts, inv, shift, lat.z_min, lat.z_max, SUM_SCALE, tr0, tc0, slots,
+            cells, cells.view(np.float32),
+        )  # fmt: skip
+        return int(n)
+
+    def _slot(self, key: tuple[int, int]) -> int:
+        slot = self.index.get(key)
+        if slot is None:
+            slot = len(self.index)
+            if slot == len(self.cells):
+                self._grow()
+            self.index[key] = slot
+        return slot
+
+    def _grow(self) -> None:
+        n = len(self.index)
+        # np.zeros maps pages lazily: the spare rows cost address space, not memory.
+        new = np.zeros((max(4, 2 * n), *self.cells.shape[1:]), dtype=np.int64)
+        new[:n] = self.cells[:n]
+        self.cells = new
+
+    # --- merging ------------------------------------------------------------------------------
+
+    def merge(self, other: TileSet) -> None:
+        """Add another partial result of the same lattice (exact, in any order)."""
+        if other.lattice != self.lattice:
+            raise ValueError(f"cannot merge tiles of {other.lattice} into {self.lattice}")
+        for key, o in other.index.items():
+            s = self._slot(key)
+            mine, theirs = self.cells[s], other.cells[o]
+            n, on = mine[:, 0], theirs[:, 0]
+            lo, hi = mine.view(np.float32)[:, 4], mine.view(np.float32)[:, 5]
+            olo, ohi = theirs.view(np.float32)[:, 4], theirs.view(np.float32)[:, 5]
+            take = (on > 0) & (n == 0)
+            both = (on > 0) & (n > 0)
+            np.minimum(lo, olo, out=lo, where=both)
+            np.maximum(hi, ohi, out=hi, where=both)
+            lo[take] = olo[take]
+            hi[take] = ohi[take]
+            n += on
+            mine[:, 1] += theirs[:, 1]
+
+    # --- results ------------------------------------------------------------------------------
+
+    def _known_box(self) -> tuple[int, int, int, int]:
+        """(row0, col0, row1, col1), inclusive global cells, of the cells with a point."""
+        t = self.lattice.tile
+        box = [math.inf, math.inf, -math.inf, -math.inf]
+        for (tr, tc), s in self.index.items():
+            occupied = self.count[s].reshape(t, t) > 0
+            rows = np.flatnonzero(occupied.any(axis=1))
+            if len(rows) == 0:
+                continue
+            cols = np.flatnonzero(occupied.any(axis=0))
+            box[0] = min(box[0], tr * t + rows[0])
+            box[1] = min(box[1], tc * t + cols[0])
+            box[2] = max(box[2], tr * t + rows[-1])
+            box[3] = max(box[3], tc * t + cols[-1])
+        if box[0] == math.inf:
+            raise ValueError("no point in the z band: the grid is empty")
+        return int(box[0]), int(box[1]), int(box[2]), int(box[3])
+
+    def _paste(self, name: str, box: tuple[int, int, int, int], dtype: type[Any]) -> NDArray[Any]:
+        """One storage array as a dense grid over ``box`` (zeros where no tile is)."""
+        r0, c0, r1, c1 = box
+        t = self.lattice.tile
+        out = np.zeros((r1 - r0 + 1, c1 - c0 + 1), dtype=dtype)
+        source: NDArray[Any] = getattr(self, name)
+        for (tr, tc), s in self.index.items():
+            # The tile's rows/cols clipped to the box, in global cells.
+            gr0, gc0 = max(tr * t, r0), max(tc * t, c0)
+            gr1, gc1 = min(tr * t + t, r1 + 1), min(tc * t + t, c1 + 1)
+            if gr0 >= gr1 or gc0 >= gc1:
+                continue
+            tile = source[s].reshape(t, t)
+            out[gr0 - r0 : gr1 - r0, gc0 - c0 : gc1 - c0] = tile[
+                gr0 - tr * t : gr1 - tr * t, gc0 - tc * t : gc1 - tc * t
+            ]
+        return out
+
+    def origin_of(self, box: tuple[int, int, int, int]) -> Pose2D:
+        r = self.lattice.resolution
+        return Pose2D(box[1] * r, box[0] * r, 0.0)
+
+    def column_stats(self) -> ColumnStats:
+        """The merged grid as :class:`ColumnStats` over the bounding box of the cells with a
+        point (the box does not depend on the tile size): max/min/mean z in metres, NaN where no
+        point; count (int32, saturated)."""
+        box = self._known_box()
+        count = self._paste("count", box, np.int64)
+        known = count > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = self._paste("zsum", box, np.int64) / count / SUM_SCALE
+        nan = np.float32(np.nan)
+        return ColumnStats(
+            max_z=np.where(known, self._paste("zmax", box, np.float32), nan).astype(np.float32),
+            min_z=np.where(known, self._paste("zmin", box, np.float32), nan).astype(np.float32),
+            mean_z=np.where(known, mean, np.nan).astype(np.float32),
+            count=np.minimum(count, np.iinfo(np.int32).max).astype(np.int32),
+            known=known,
+            resolution=self.lattice.resolution,
+            origin=self.origin_of(box),
+        )
+
+    def occupancy(self) -> OccupancyGrid:
+        """Cells with a point occupied, the rest unknown: end points see no free space. The same
+        grid as the octree's end points projected (``project_occupancy``) without a z band."""
+        box = self._known_box()
+        known = self._paste("count", box, np.int64) > 0
+        data = np.where(known, np.int8(OCCUPIED), np.int8(UNKNOWN)).astype(np.int8)
+        return OccupancyGrid(data, self.lattice.resolution, self.origin_of(box))

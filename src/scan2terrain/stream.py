@@ -1,0 +1,349 @@
+"""Streamed, tiled rasterisation: clouds and bags larger than memory to grids, on one process or
+on a Dask cluster.
+
+cloud2world/bag2world with ``stream.enabled`` (``--stream``):
+    plan chunks (LAS/LAZ: ranges of points, from the headers; other cloud files: one per file;
+    bags: time slices) -> each chunk read ``stream.chunk_points`` at a time -> end points into a
+    :class:`~scan2terrain.grids.tiles.TileSet` -> partial tile sets merged (exact, any order)
+    -> column statistics or occupancy -> the world, written once, atomically
+With ``stream.workers`` or ``stream.scheduler`` every chunk is a Dask task: workers read their
+chunk themselves (by path: they must see the same files) and send back its tiles; the client
+merges them. Without either, nothing imports Dask.
+
+What is distributed: reading, decoding, posing and rasterising the end points, per chunk. What is
+not: ray casting (an octree's clamped log-odds depend on the order of updates, so partial octrees
+do not merge exactly; ray-cast bags and clouds take the octree path on one process), bags' tf
+pass (read once by the client, sent to every task), the merge and the writing of outputs.
+
+Like ingest.py, this module composes the stages and owns no algorithm.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import ConfigError, InputError
+from scan2terrain.grids.tiles import Lattice, TileSet
+
+if TYPE_CHECKING:
+    from scan2terrain.pipeline import Result
+    from scan2terrain.readers.scans import BagPlan
+
+#: Beyond this distance from the origin (metres) cloud files get a local origin (as ingest.FAR).
+FAR = 1000.0
+#: A task reads this many chunks of ``stream.chunk_points`` from a LAS/LAZ file.
+CHUNKS_PER_TASK = 8
+#: A bag task reads about this many scan messages.
+SCANS_PER_TASK = 256
+
+#: Called after every task: (tasks done, tasks in all, points counted so far).
+Progress = Callable[[int, int, int], None]
+
+
+@dataclass(frozen=True)
+class CloudChunk:
+    """Points ``[start, start + count)`` of a cloud file (``count`` None: the whole file)."""
+
+    path: str
+    start: int = 0
+    count: int | None = None
+
+
+@dataclass(frozen=True)
+class BagChunk:
+    """A bag's scans with a stamp in ``[start_ns, end_ns]`` (bag time, inclusive)."""
+
+    paths: tuple[str, ...]
+    start_ns: int
+    end_ns: int
+
+
+Chunk = CloudChunk | BagChunk
+
+
+@dataclass(frozen=True)
+class Job:
+    """What every task needs besides its chunk (small, sent with each task)."""
+
+    lattice: Lattice
+    origin: tuple[float, float, float]  #: subtracted from every point (local origin), metres
+    step: int  #: points read at a time
+    las_classes: tuple[int, ...] | None = None
+    bag: BagJob | None = None
+
+
+@dataclass(frozen=True)
+class BagJob:
+    """A bag task's plan: topics, frames and the tf tree the client read (no re-reading)."""
+
+    plan: BagPlan
+    config: Config
+
+
+@dataclass(frozen=True)
+class Streamed:
+    """The merged tiles and what went into them, for the report."""
+
+    tiles: TileSet
+    notes: tuple[str, ...]
+
+
+# --- planning ---------------------------------------------------------------------------------
+
+
+def lattice_for(cfg: Config) -> Lattice:
+    o = cfg.octree
+    return Lattice(
+        o.resolution,
+        cfg.stream.tile_cells,
+        -math.inf if o.z_min is None else o.z_min,
+        math.inf if o.z_max is None else o.z_max,
+    )
+
+
+def plan_clouds(files: Sequence[Path], cfg: Config) -> tuple[list[CloudChunk], Job, list[str]]:
+    """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
+    reading points; other formats are read once here for their bounds (they are read whole by
+    their task too: only LAS/LAZ stream within a file)."""
+    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, las_info, read_cloud
+
+    st = cfg.stream
+    per_task = st.chunk_points * CHUNKS_PER_TASK
+    chunks: list[CloudChunk] = []
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    notes: list[str] = []
+    total = 0
+    classes = cfg.scans.las_classes
+    for f in files:
+        path = Path(f).resolve()  # workers may run elsewhere: the path as the client sees it
+        if path.suffix.lower() in LAS_SUFFIXES:
+            info = las_info(path)
+            if info.points == 0:
+                raise InputError(path, "no point in the cloud (the header says 0)")
+            chunks += [
+                CloudChunk(str(path), s, min(per_task, info.points - s))
+                for s in range(0, info.points, per_task)
+            ]
+            lo = np.minimum(lo, info.mins)
+            hi = np.maximum(hi, info.maxs)
+            n, fmt = info.points, info.format
+        else:
+            if classes is not None:
+                raise InputError(path, "LAS classes can only be selected in .las/.laz files")
+            cloud = read_cloud(path)
+            chunks.append(CloudChunk(str(path)))
+            lo = np.minimum(lo, cloud.points.min(axis=0))
+            hi = np.maximum(hi, cloud.points.max(axis=0))
+            n, fmt = len(cloud.points), cloud.format
+        total += n
+        notes.append(f"{path.name}: {n:,} points ({fmt})")
+    origin = np.zeros(3)
+    if cfg.scans.local_origin == "auto" and max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
+        origin = np.round((lo + hi) / 2)
+        notes.append(
+            "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(
+                *origin
+            )
+        )
+    job = Job(
+        lattice_for(cfg),
+        (float(origin[0]), float(origin[1]), float(origin[2])),
+        st.chunk_points,
+        None if classes is None else tuple(classes),
+    )
+    notes.append(f"streamed: {len(chunks)} task(s) over {total:,} points")
+    return chunks, job, notes
+
+
+def plan_bag_chunks(
+    bags: Sequence[Path], start_ns: int, end_ns: int, messages: int
+) -> list[BagChunk]:
+    """Equal, disjoint time slices of ``[start_ns, end_ns]`` (bag time, inclusive), about
+    ``SCANS_PER_TASK`` scan messages each if they are evenly spread. Planned from the bag's
+    index (counts and span) alone: no pass over the messages."""
+    paths = tuple(str(Path(b).resolve()) for b in bags)
+    n = max(1, min(math.ceil(messages / SCANS_PER_TASK), end_ns - start_ns + 1))
+    edges = start_ns + (np.arange(n + 1, dtype=np.int64) * (end_ns - start_ns + 1)) // n
+    return [BagChunk(paths, int(a), int(b) - 1) for a, b in itertools.pairwise(edges)]
+
+
+# --- one task ---------------------------------------------------------------------------------
+
+
+def rasterise(chunk: Chunk, job: Job) -> TileSet:
+    """The tiles of one chunk's end points. The unit of work, on the client or a Dask worker."""
+    tiles = TileSet(job.lattice)
+    origin = np.array(job.origin)
+    for points in _chunk_points(chunk, job):
+        tiles.add_points(points - origin if origin.any() else points)
+    return tiles
+
+
+def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
+    if isinstance(chunk, BagChunk):
+        yield from _bag_points(chunk, job)
+        return
+    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, iter_las, read_cloud
+
+    path = Path(chunk.path)
+    if path.suffix.lower() in LAS_SUFFIXES:
+        yield from iter_las(
+            path,
+            start=chunk.start,
+            count=chunk.count,
+            step=job.step,
+            las_classes=job.las_classes,
+        )
+        return
+    points = read_cloud(path).points
+    for s in range(0, len(points), job.step):
+        yield points[s : s + job.step]
+
+
+def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
+    from scan2terrain.ingest import _hits_of
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.scans import ScanCounts, posed_scans
+
+    assert job.bag is not None, "a bag chunk needs the bag's plan"
+    plan = replace(job.bag.plan, start_ns=chunk.start_ns, end_ns=chunk.end_ns)
+    cfg = job.bag.config
+    buf: list[NDArray[np.float64]] = []
+    held = 0
+    with open_bag([Path(p) for p in chunk.paths]) as bag:
+        counts = ScanCounts()
+        for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
+            hits = _hits_of(scan)
+            buf.append(hits)
+            held += len(hits)
+            if held >= job.step:
+                yield np.concatenate(buf)
+                buf, held = [], 0
+    if buf:
+        yield np.concatenate(buf)
+
+
+# --- running ----------------------------------------------------------------------------------
+
+
+def run(
+    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None = None
+) -> TileSet:
+    """Every chunk rasterised and merged: here, or on Dask with ``stream.workers`` or
+    ``stream.scheduler``. The result does not depend on which."""
+    st = cfg.stream
+    if st.workers or st.scheduler:
+        return _run_dask(chunks, job, cfg, progress)
+    total = TileSet(job.lattice)
+    for i, chunk in enumerate(chunks):
+        total.merge(rasterise(chunk, job))
+        if progress is not None:
+            progress(i + 1, len(chunks), total.points)
+    return total
+
+
+def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None) -> TileSet:
+    """The chunks as Dask tasks; results merged on the client as they complete. A task whose
+    worker dies is run again by Dask on another worker, and its result counts once: only a
+    completed task's result is merged, and every task completes once."""
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ConfigError(
+            "stream.workers/stream.scheduler need Dask: pip install 'scan2terrain[dask]'"
+        ) from None
+    import contextlib
+
+    st = cfg.stream
+    total = TileSet(job.lattice)
+    with contextlib.ExitStack() as stack:
+        if st.scheduler:
+            try:
+                client = stack.enter_context(Client(st.scheduler, timeout="10s"))
+            except OSError as exc:
+                raise ConfigError(
+                    f"stream.scheduler {st.scheduler}: cannot connect ({exc})"
+                ) from None
+        else:
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=st.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
+            )
+            client = stack.enter_context(Client(cluster))
+        futures = client.map(rasterise, list(chunks), job=job, pure=False)
+        for done, future in enumerate(as_completed(futures), start=1):
+            total.merge(future.result())
+            future.release()
+            if progress is not None:
+                progress(done, len(futures), total.points)
+    return total
+
+
+# --- commands ---------------------------------------------------------------------------------
+
+
+def stream_clouds(files: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
+    chunks, job, notes = plan_clouds(files, cfg)
+    tiles = run(chunks, job, cfg, progress)
+    return Streamed(tiles, tuple(notes))
+
+
+def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
+    """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
+    reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.scans import plan_bag
+
+    with open_bag(list(bags)) as bag:
+        plan = plan_bag(bag, cfg.scans)
+        if plan.map_topic is not None:
+            raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to stream")
+        bag.require_messages(plan.scan_topics, plan.start_ns, plan.end_ns)
+        messages = sum(bag.count(plan.scan_topics).values())
+        lo = bag.start_ns if plan.start_ns is None else max(plan.start_ns, bag.start_ns)
+        hi = bag.end_ns if plan.end_ns is None else min(plan.end_ns, bag.end_ns)
+    chunks = plan_bag_chunks(bags, lo, hi, messages)
+    job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
+    tiles = run(chunks, job, cfg, progress)
+    notes = [*plan.reasons, f"streamed: {len(chunks)} task(s) over {messages:,} scan messages"]
+    return Streamed(tiles, tuple(notes))
+
+
+def streamed_world(
+    streamed: Streamed, source: Path, out: Path, cfg: Config, *, overwrite: bool
+) -> Result:
+    """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
+    unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
+    ``octree.fill`` says), then as every other grid."""
+    from scan2terrain.grids import projection
+    from scan2terrain.pipeline import height_world, occupancy_world
+
+    tiles = streamed.tiles
+    if tiles.points == 0:
+        raise InputError(source, "no point in the z band: nothing to make a grid of")
+    o = cfg.octree
+    if o.grid == "occupancy":
+        result = occupancy_world(tiles.occupancy(), source, out, cfg, overwrite=overwrite)
+    else:
+        heights = tiles.column_stats().to_height_grid(o.height_stat)
+        if o.fill == "nearest":
+            heights = projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
+        elif o.fill == "idw":
+            heights = projection.fill_idw(heights)
+        result = height_world(heights, source, out, cfg, overwrite=overwrite)
+    result.notes = [*streamed.notes, f"points counted: {tiles.points:,}"]
+    return result
