@@ -7,6 +7,10 @@ dem2world:   read GeoTIFF -> square pixels, DEM centre at the origin -> canvas/f
              above the lowest -> 16-bit heightmap at z = lowest elevation -> worlds, preview
 walls:       with world.geometry mesh | boxes | polylines, an occupancy grid's occupied cells
              -> outlines (mesh, polylines) or merged boxes -> one static model per simulator
+
+Any size: a terrain wider or taller than ``terrain.max_side`` samples is written as heightmap
+tiles sharing their border samples (gz-sim only, see exporters/tiles.py), and a map_server map
+wider or taller than ``output.map_max_side`` cells as map tiles, each with its own YAML.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap, make_heightmap
 from scan2terrain.exporters.output import OutputDir, atomic_output
 from scan2terrain.exporters.preview import preview_png
+from scan2terrain.exporters.tiles import TiledHeightmap, TileSpec, make_tiled_heightmap
 from scan2terrain.filters import (
     majority_filter,
     median_filter,
@@ -58,15 +63,25 @@ ScalarT = TypeVar("ScalarT", bound=np.generic)
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 CONFIG_FILE = "scan2terrain.yaml"
 
+#: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
+Terrain = Heightmap | TiledHeightmap
+
 
 @dataclass(frozen=True)
 class WorldOutput:
-    """One simulator's world inside the output folder."""
+    """One simulator's world inside the output folder.
+
+    ``map_yaml`` is the map_server YAML lined up with this world (None when no map was written,
+    or when the map was written as tiles: then ``map_tiles`` lists one YAML per tile, row by row
+    from the lowest y). For tiled terrain ``placement`` describes the whole terrain (model name
+    = the tiles' common prefix, size = the grid's extent).
+    """
 
     placement: sdf.Placement
     world: Path
     models: Path
     map_yaml: Path | None
+    map_tiles: tuple[Path, ...] = ()
 
 
 @dataclass
@@ -83,6 +98,7 @@ class Result:
     notes: list[str] = field(default_factory=list)  #: what was read and chosen, for the report
     geometry: str = "heightmap"  #: world.geometry of the worlds written
     walls: str = ""  #: for wall geometries: what the walls are made of, for the report
+    tiles: tuple[int, int] = (1, 1)  #: heightmap tiles along y and x (terrain.max_side)
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -142,6 +158,33 @@ def terrain_heightmap(
         HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin),
         bit_depth=t.bit_depth,
         pad_height=pad_height,
+    )
+
+
+def terrain_layout(
+    heights: NDArray[np.float32],
+    resolution: float,
+    origin: Pose2D,
+    cfg: Config,
+    *,
+    pad_height: float,
+) -> Terrain:
+    """As :func:`terrain_heightmap`, but a grid of more than ``terrain.max_side`` samples a side
+    (after up-sampling) becomes terrain tiles (:class:`~.exporters.tiles.TiledHeightmap`)."""
+    t = cfg.terrain
+    fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
+    grid = HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin)
+    return heightmap_or_tiles(grid, cfg, pad_height=pad_height)
+
+
+def heightmap_or_tiles(grid: HeightGrid, cfg: Config, *, pad_height: float) -> Terrain:
+    """One heightmap (``terrain.bit_depth``) when ``grid`` (yaw 0) fits ``terrain.max_side``,
+    else tiles of that side sharing their border samples."""
+    t = cfg.terrain
+    if max(grid.shape) <= t.max_side:
+        return make_heightmap(grid, bit_depth=t.bit_depth, pad_height=pad_height)
+    return make_tiled_heightmap(
+        grid, max_side=t.max_side, bit_depth=t.bit_depth, pad_height=pad_height
     )
 
 
@@ -218,7 +261,7 @@ def occupancy_world(
         aligned, wall_height=t.height, policy=t.unknown, unknown_height=t.unknown_height
     )
     pad = unknown_level(t.unknown, wall_height=t.height, unknown_height=t.unknown_height)
-    hm = terrain_heightmap(heights, grid.resolution, world_origin, cfg, pad_height=pad)
+    hm = terrain_layout(heights, grid.resolution, world_origin, cfg, pad_height=pad)
     return _write(
         out,
         cfg,
@@ -343,7 +386,7 @@ def height_world(
     if f.enabled and f.kind != "none":
         filled = median_filter(filled, size=f.size)
     aligned, world_origin = axis_align(filled, grid.origin, grid.resolution, fill=floor)
-    hm = terrain_heightmap(aligned, grid.resolution, world_origin, cfg, pad_height=floor)
+    hm = terrain_layout(aligned, grid.resolution, world_origin, cfg, pad_height=floor)
     top = float(aligned.max(initial=floor))
     return _write(
         out,
@@ -389,7 +432,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     aligned, world_origin = axis_align(filtered, origin, res, fill=0)
     scale = np.float32(cfg.terrain.height / img.max_value)
     heights = (aligned.astype(np.float32) * scale).astype(np.float32)
-    hm = terrain_heightmap(heights, res, world_origin, cfg, pad_height=0.0)
+    hm = terrain_layout(heights, res, world_origin, cfg, pad_height=0.0)
     top = float(heights.max(initial=0.0))
     levels = (0.0, top / 2, top)
     return _write(
@@ -466,6 +509,7 @@ def walls_world(
     map_out = OccupancyGrid(aligned, r, world_origin)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary)
+    result.notes.extend(_map_notes(cfg, map_out))
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, map_out)
         for sim in sims:
@@ -479,10 +523,8 @@ def walls_world(
             world = od.write(
                 WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=described)
             )
-            map_yaml = _write_map_yaml(
-                od, cfg, map_out, sim=sim, offset=(0.0, 0.0), comment=described
-            )
-            result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
+            yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=(0.0, 0.0), comment=described)
+            result.worlds.append(_world_output(p, world, out / "models", yamls))
         _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
@@ -635,17 +677,18 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     z0 = dem.z_min
     top = float(heights[known].max())
     above = np.clip(np.where(known, heights - np.float32(z0), 0), 0, top - z0)
-    hm = make_heightmap(
+    hm = heightmap_or_tiles(
         HeightGrid(above.astype(np.float32), np.ones(above.shape, dtype=bool), res, origin),
-        bit_depth=t.bit_depth,
+        cfg,
         pad_height=0.0,
     )
     # make_heightmap puts 0 at min(0, lowest) = 0 here; the ground's 0 is the lowest elevation.
-    hm = dataclasses.replace(hm, z_min=z0)
+    # Tiles keep their pixels (0 two levels below the lowest) and are raised by it.
+    hm = hm.raised(z0) if isinstance(hm, TiledHeightmap) else dataclasses.replace(hm, z_min=z0)
     notes = _dem_notes(source, dem, res, hm)
     extra: dict[str, bytes] = {}
     if cfg.dem.passthrough:
-        name = f"{model_name_for(source, hm, cfg)}_dem"
+        name = f"{terrain_name(source, hm, cfg)}_dem"
         # What the PNG world's notes say about the DEM and its frame, not about its pixels.
         about = (notes[0], notes[2], *dem.notes)
         extra = _dem_passthrough(source, dem, name, cfg, "".join(f" {n}\n" for n in about))
@@ -670,7 +713,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     return result
 
 
-def _dem_notes(source: Path, dem: Dem, res: float, hm: Heightmap) -> list[str]:
+def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain) -> list[str]:
     """What was read and where it went: for the report and the SDF comments."""
     rows, cols = dem.shape
     px, py = dem.pixel_size
@@ -700,10 +743,16 @@ def _dem_notes(source: Path, dem: Dem, res: float, hm: Heightmap) -> list[str]:
         )
     else:
         lines.append("Map frame = DEM frame: metres from the image centre, x right, y up.")
-    lines.append(
-        f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m);"
-        f" in Gazebo Classic z = elevation - {hm.z_min!r} m."
-    )
+    if isinstance(hm, TiledHeightmap):
+        lines.append(
+            f"z = elevation in gz-sim (every tile: pixel 0 at {hm.z_min!r} m, full scale"
+            f" {hm.z_range!r} m above it)."
+        )
+    else:
+        lines.append(
+            f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m);"
+            f" in Gazebo Classic z = elevation - {hm.z_min!r} m."
+        )
     return lines + list(dem.notes)
 
 
@@ -807,6 +856,19 @@ def model_name_for(source: Path, hm: Heightmap, cfg: Config) -> str:
     return _unique_name(source, hm.pixels.tobytes() + geometry.encode(), cfg)
 
 
+def terrain_name(source: Path, terrain: Terrain, cfg: Config) -> str:
+    """:func:`model_name_for` one heightmap; for tiles, the prefix of every tile's model name
+    (``<prefix>_<row>_<col>``), from a digest of the heights and of everything that turns them
+    into pixels and places them (the tiles' pixels follow from those)."""
+    if isinstance(terrain, Heightmap):
+        return model_name_for(source, terrain, cfg)
+    t = terrain
+    scale = (t.resolution, t.origin, t.z_min, t.z_range, t.max_side, t.bit_depth, t.pad_height)
+    geometry = repr((*scale, t.grid_shape, cfg.world.sampling))
+    heights = hashlib.sha256(np.ascontiguousarray(t.heights).data).digest()
+    return _unique_name(source, heights + geometry.encode(), cfg)
+
+
 def _unique_name(source: Path, content: bytes, cfg: Config) -> str:
     """``world.model_name``, else input stem + the first 8 hex digits of sha256(content)."""
     if cfg.world.model_name:
@@ -821,17 +883,31 @@ def _write(
     *,
     overwrite: bool,
     source: Path,
-    hm: Heightmap,
+    hm: Terrain,
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: bytes,
     extra: dict[str, bytes] | None = None,
     comment_extra: str = "",
 ) -> Result:
+    if isinstance(hm, TiledHeightmap):
+        return _write_tiled(
+            out,
+            cfg,
+            overwrite=overwrite,
+            source=source,
+            tiled=hm,
+            levels=levels,
+            map_out=map_out,
+            preview=preview,
+            extra=extra,
+            comment_extra=comment_extra,
+        )
     png = hm.png()
     base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
+    result.notes.extend(_map_notes(cfg, map_out))
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, map_out)
         for sim in sims:
@@ -848,18 +924,125 @@ def _write(
             world = od.write(
                 WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment)
             )
-            map_yaml = _write_map_yaml(od, cfg, map_out, sim=sim, offset=p.offset, comment=comment)
-            result.worlds.append(WorldOutput(p, world, out / "models", map_yaml))
+            yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=p.offset, comment=comment)
+            result.worlds.append(_world_output(p, world, out / "models", yamls))
         _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
 
-MAP_PGM = "map.pgm"
+def _write_tiled(
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool,
+    source: Path,
+    tiled: TiledHeightmap,
+    levels: tuple[float, float, float],
+    map_out: OccupancyGrid | None,
+    preview: bytes,
+    extra: dict[str, bytes] | None,
+    comment_extra: str,
+) -> Result:
+    """Terrain tiles: one model per tile (models/<name>_<row>_<col>/), one gz-sim world that
+    includes them all. Gazebo Classic is refused (``world.simulator: classic``) or left out with
+    a note (``both``): it renders one heightmap per scene, always at the world origin."""
+    rows, cols = tiled.shape
+    h, w = tiled.grid_shape
+    r = tiled.resolution
+    what = (
+        f"a {h}x{w}-sample terrain is over terrain.max_side {tiled.max_side} and becomes"
+        f" {rows}x{cols} heightmap tiles"
+    )
+    classic_why = (
+        "Gazebo Classic renders only one heightmap per world (gazebo-classic rendering/Scene.cc:"
+        " 'Only one Heightmap can be created per Scene') and cannot move a heightmap away from"
+        " the world origin (gazebo-classic #2167)"
+    )
+    if cfg.world.simulator == CLASSIC:
+        raise ConfigError(
+            f"{what}, and {classic_why}: use --simulator gz, a coarser resolution, or a larger"
+            " terrain.max_side (2^n+1, in a --config file)"
+        )
+    base = terrain_name(source, tiled, cfg)
+    s = sdf.DEFAULT_SAMPLING[GZ] if cfg.world.sampling is None else cfg.world.sampling
+    result = Result(
+        out=out,
+        heightmap_side=tiled.side,
+        resolution=r,
+        size_z=tiled.span,
+        tiles=(rows, cols),
+    )
+    result.notes.append(
+        f"Terrain: {h}x{w} samples at {r:g} m/px, over terrain.max_side {tiled.max_side}: "
+        f"{rows}x{cols} heightmap tiles models/{base}_<row>_<col>/ (row 0 = lowest y), "
+        "neighbours sharing their border samples; gz-sim only."
+    )
+    if cfg.world.simulator == "both":
+        result.notes.append(f"Gazebo Classic world not written: {classic_why}.")
+    result.notes.extend(_map_notes(cfg, map_out))
+    world_comment = _tiled_comment(source, tiled, base) + comment_extra
+    textures = sdf.texture_pngs()
+    with atomic_output(out, overwrite=overwrite) as od:
+        _write_map_pgm(od, cfg, map_out)
+        placements = []
+        for spec, hm in tiled.tiles():
+            name = f"{base}_{spec.row}_{spec.col}"
+            p = sdf.placement_for(hm, GZ, name, cfg.world.sampling)
+            mdir = f"models/{name}"
+            od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}", hm.png())
+            for fname, data in textures.items():
+                od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
+            comment = _tile_comment(source, tiled, spec, hm) + comment_extra
+            od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
+            description = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
+            od.write(f"{mdir}/model.config", sdf.model_config(p, description))
+            placements.append(p)
+        world = od.write(
+            WORLD_FILES[GZ],
+            sdf.tiled_world_sdf(placements, world_name="scan2terrain", comment=world_comment),
+        )
+        yamls = _write_map_yaml(od, cfg, map_out, sim=GZ, offset=(0.0, 0.0), comment=world_comment)
+        whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
+        result.worlds.append(_world_output(whole, world, out / "models", yamls))
+        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
+    return result
+
+
+def _world_output(
+    p: sdf.Placement, world: Path, models: Path, yamls: tuple[Path, ...]
+) -> WorldOutput:
+    if len(yamls) == 1:
+        return WorldOutput(p, world, models, yamls[0])
+    return WorldOutput(p, world, models, None, yamls)
+
+
+def _map_parts(cfg: Config, map_out: OccupancyGrid) -> list[tuple[str, OccupancyGrid]]:
+    """(file stem, grid) of the map/ image(s): ``map`` when the map fits
+    ``output.map_max_side``, else ``map_<row>_<col>`` tiles (row 0 = lowest y)."""
+    parts = map_export.map_tiles(map_out, cfg.output.map_max_side)
+    if len(parts) == 1:
+        return [("map", map_out)]
+    return [(f"map_{i}_{j}", tile) for i, j, tile in parts]
+
+
+def _map_notes(cfg: Config, map_out: OccupancyGrid | None) -> list[str]:
+    if map_out is None or not cfg.output.map_yaml:
+        return []
+    rows, cols = map_out.shape
+    m = cfg.output.map_max_side
+    if rows <= m and cols <= m:
+        return []
+    return [
+        f"Map: {rows}x{cols} cells, over output.map_max_side {m}: written as "
+        f"{-(-rows // m)}x{-(-cols // m)} tiles map/map_<row>_<col>.pgm (row 0 = lowest y), "
+        "each with map_<row>_<col>_<simulator>.yaml placing it in that world."
+    ]
 
 
 def _write_map_pgm(od: OutputDir, cfg: Config, map_out: OccupancyGrid | None) -> None:
     if map_out is not None and cfg.output.map_yaml:
-        od.write(f"map/{MAP_PGM}", map_export.map_pgm(map_out))
+        for stem, part in _map_parts(cfg, map_out):
+            od.write(f"map/{stem}.pgm", map_export.map_pgm(part))
 
 
 def _write_map_yaml(
@@ -870,19 +1053,28 @@ def _write_map_yaml(
     sim: str,
     offset: tuple[float, float],
     comment: str,
-) -> Path | None:
-    """map/map_<sim>.yaml: the filtered map with its origin in that simulator's world frame."""
+) -> tuple[Path, ...]:
+    """map/map_<sim>.yaml: the filtered map with its origin in that simulator's world frame; for
+    a tiled map, map/map_<row>_<col>_<sim>.yaml per tile, each with its own tile's origin."""
     if map_out is None or not cfg.output.map_yaml:
-        return None
-    shifted = map_out.with_data(
-        map_out.data, Pose2D(map_out.origin.x - offset[0], map_out.origin.y - offset[1], 0.0)
-    )
-    return od.write(
-        f"map/map_{sim}.yaml",
-        map_export.map_yaml(
-            shifted, MAP_PGM, comment=f"Filtered map in the {sim} world frame.\n{comment}"
-        ),
-    )
+        return ()
+    parts = _map_parts(cfg, map_out)
+    written = []
+    for stem, part in parts:
+        # map_out is in world axes (grids.axis_align): its yaw, and each tile's, is 0.
+        shifted = part.with_data(
+            part.data, Pose2D(part.origin.x - offset[0], part.origin.y - offset[1], 0.0)
+        )
+        about = f"Filtered map in the {sim} world frame.\n"
+        if len(parts) > 1:
+            about = (
+                f"Tile {stem} of the filtered map (rows, columns from the lowest y, x; up to"
+                f" {cfg.output.map_max_side} cells a side) in the {sim} world frame.\n"
+            )
+        name = f"map/{stem}_{sim}.yaml"
+        text = map_export.map_yaml(shifted, f"{stem}.pgm", comment=about + comment)
+        written.append(od.write(name, text))
+    return tuple(written)
 
 
 def _write_tail(
@@ -904,6 +1096,41 @@ def _write_tail(
     header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
     body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
     result.config = od.write(CONFIG_FILE, (header + body).encode())
+
+
+def _tiled_comment(source: Path, tiled: TiledHeightmap, base: str) -> str:
+    rows, cols = tiled.shape
+    h, w = tiled.grid_shape
+    return (
+        f" Generated by scan2terrain from {source.name}.\n"
+        f" Terrain of {h}x{w} samples at {tiled.resolution!r} m/px as {rows}x{cols} heightmap"
+        f" tiles of up to {tiled.max_side}x{tiled.max_side} px (terrain.max_side): models"
+        f" {base}_<row>_<col>, row 0 = lowest y, column 0 = lowest x; tile (i, j) holds the"
+        f" samples from row i*{tiled.max_side - 1}, column j*{tiled.max_side - 1}, so neighbours"
+        " share their border samples. One scale for every tile: pixel 0 at"
+        f" {tiled.z_min!r} m, full scale at {tiled.z_min + tiled.z_range!r} m (levels 0 and 1"
+        " unused: gz-common reads a pixel of value 1 as white).\n"
+        " gz-sim: map frame (x, y) = world (x, y). Each tile's collision <pose> and visual <pos>"
+        " carry its offset (gz-sim #1295, #1803). Gazebo Classic cannot show tiled terrain"
+        " (one heightmap per scene, at the world origin).\n"
+    )
+
+
+def _tile_comment(source: Path, tiled: TiledHeightmap, spec: TileSpec, hm: Heightmap) -> str:
+    rows, cols = tiled.shape
+    h, w = tiled.grid_shape
+    return (
+        f" Generated by scan2terrain from {source.name}.\n"
+        f" Terrain tile ({spec.row}, {spec.col}) of {rows}x{cols} (row 0 = lowest y): grid"
+        f" samples rows {spec.r0}..{spec.r0 + spec.rows - 1}, columns"
+        f" {spec.c0}..{spec.c0 + spec.cols - 1} of {h}x{w}, shared at the borders with the"
+        f" neighbouring tiles. Heightmap {hm.side}x{hm.side} px, {hm.resolution!r} m/px, pixel"
+        f" 0 at {hm.z_min!r} m, brightest pixel at {hm.z_min + hm.z_range!r} m (size.z = its"
+        " height; every tile shares one scale, full scale at"
+        f" {tiled.z_min + tiled.z_range!r} m).\n"
+        " gz-sim: map frame (x, y) = world (x, y). Collision <pose> and visual <pos> carry the"
+        " offset (gz-sim #1295, #1803).\n"
+    )
 
 
 def _comment(source: Path, hm: Heightmap, p: sdf.Placement) -> str:

@@ -37,7 +37,10 @@ class Heightmap:
     z_min : float
         Height of a 0 pixel, metres.
     z_range : float
-        Height of a full-scale pixel above ``z_min`` (SDF ``size.z``), metres.
+        SDF ``size.z``: the height above ``z_min`` of the image's brightest pixel, metres
+        (Gazebo scales every pixel to it, ``v / v_max * size.z``). In one heightmap the
+        brightest pixel is full scale; a terrain tile (:mod:`.tiles`) keeps the quantisation of
+        the whole terrain, so its brightest pixel may be darker and its ``z_range`` smaller.
     pad : (int, int)
         Columns of padding left of and rows below the grid inside the canvas.
     grid_shape : (int, int)
@@ -108,16 +111,8 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
         grid.known, grid.heights, pad_height
     )
 
-    z_min = min(0.0, float(canvas.min()))
-    z_max = float(canvas.max())
-    full = (1 << bit_depth) - 1
-    if z_max > z_min:
-        z_range = z_max - z_min
-        levels = np.rint((canvas - np.float32(z_min)) * np.float32(full / z_range))
-    else:  # flat: every pixel 0, Gazebo falls back to a scale of 1 and the ground is at z_min
-        z_range = 1.0
-        levels = np.zeros_like(canvas)
-    pixels = np.flipud(levels).astype(np.uint16 if bit_depth == 16 else np.uint8)
+    z_min, z_range = height_scale(float(canvas.min()), float(canvas.max()))
+    pixels = quantise(canvas, z_min, z_range, bit_depth)
 
     r = grid.resolution
     mid = (n - 1) // 2
@@ -125,7 +120,7 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
         np.array((mid - left + 0.5) * r), np.array((mid - bottom + 0.5) * r)
     )
     return Heightmap(
-        np.ascontiguousarray(pixels),
+        pixels,
         r,
         (float(cx), float(cy)),
         z_min,
@@ -133,3 +128,27 @@ def make_heightmap(grid: HeightGrid, *, bit_depth: int = 8, pad_height: float = 
         (left, bottom),
         (rows, cols),
     )
+
+
+def height_scale(lowest: float, highest: float) -> tuple[float, float]:
+    """``(z_min, z_range)`` for heights in ``[lowest, highest]`` metres: 0 is at most the ground
+    (``min(0, lowest)``) and full scale is ``highest``; a flat field gets a range of 1."""
+    z_min = min(0.0, lowest)
+    return z_min, (highest - z_min if highest > z_min else 1.0)
+
+
+def quantise(
+    canvas: NDArray[np.float32], z_min: float, z_range: float, bit_depth: int
+) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """Heights (metres, grid order) to pixel values in image order (row 0 = largest y).
+
+    ``z_min`` becomes 0 and ``z_min + z_range`` full scale (255 or 65535), rounded to the
+    nearest level. The same heights, ``z_min`` and ``z_range`` always give the same pixels, so
+    samples shared by terrain tiles quantise alike.
+    """
+    # A flat field (every height at z_min, z_range 1) gets 0 everywhere: Gazebo then falls back
+    # to a scale of 1 and the ground is at z_min.
+    full = (1 << bit_depth) - 1
+    levels = np.rint((canvas - np.float32(z_min)) * np.float32(full / z_range))
+    dtype = np.uint16 if bit_depth == 16 else np.uint8
+    return np.ascontiguousarray(np.flipud(levels).astype(dtype))

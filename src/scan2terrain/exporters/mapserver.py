@@ -1,4 +1,9 @@
-"""Occupancy grids back to map_server maps (YAML + PGM), as nav2's map_saver writes them."""
+"""Occupancy grids back to map_server maps (YAML + PGM), as nav2's map_saver writes them.
+
+A map wider or taller than ``output.map_max_side`` cells is written as tiles (:func:`map_tiles`):
+they partition the cells (no overlap), and each tile's YAML origin is the map-frame pose of its
+own lower-left cell, so map_server places every tile exactly where its cells were.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +12,7 @@ import io
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.types import FREE, OCCUPIED, OccupancyGrid
+from scan2terrain.types import FREE, OCCUPIED, OccupancyGrid, Pose2D
 
 #: map_saver's trinary shades.
 SHADE_FREE, SHADE_OCCUPIED, SHADE_UNKNOWN = 254, 0, 205
@@ -51,3 +56,27 @@ def map_yaml(grid: OccupancyGrid, image_name: str, *, comment: str = "") -> byte
         "free_thresh: 0.196",
     ]
     return ("\n".join(lines) + "\n").encode()
+
+
+def map_tiles(grid: OccupancyGrid, max_side: int) -> list[tuple[int, int, OccupancyGrid]]:
+    """``grid`` cut into tiles of at most ``max_side`` x ``max_side`` cells: ``(row, col, tile)``.
+
+    Tile ``(i, j)`` holds rows ``[i M, (i + 1) M)`` and columns ``[j M, (j + 1) M)`` (``M =
+    max_side``, the last ones fewer); row 0 is the lowest y, as in the grid. Each tile's origin
+    is the pose of its cell (0, 0)'s lower-left corner: the grid's origin moved along the grid's
+    own axes (its yaw kept). A grid that fits is one tile ``(0, 0, grid)``.
+    """
+    if max_side < 1:
+        raise ValueError(f"max_side must be >= 1, got {max_side}")
+    rows, cols = grid.shape
+    if rows <= max_side and cols <= max_side:
+        return [(0, 0, grid)]
+    r, o = grid.resolution, grid.origin
+    out = []
+    for i in range(-(-rows // max_side)):
+        for j in range(-(-cols // max_side)):
+            r0, c0 = i * max_side, j * max_side
+            x, y = o.transform(np.array(c0 * r), np.array(r0 * r))
+            data = np.ascontiguousarray(grid.data[r0 : r0 + max_side, c0 : c0 + max_side])
+            out.append((i, j, grid.with_data(data, Pose2D(float(x), float(y), o.yaw))))
+    return out

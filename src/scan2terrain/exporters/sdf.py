@@ -10,6 +10,12 @@ Placement, from ../shared/REFERENCE.md:
   ``<pos>`` moves only the visual (#868). The terrain is therefore centred on the world origin and
   a map point (x, y) is the world point (x - cx, y - cy); :class:`Placement` carries (cx, cy).
 
+Terrain tiles (grids larger than ``terrain.max_side``, :mod:`.tiles`): each tile is its own model
+placed as above (gz-sim: collision ``<pose>`` and visual ``<pos>`` = the tile's centre; ``size``
+from the tile's own side) and :func:`tiled_world_sdf` includes them all. gz-sim only: Gazebo
+Classic renders a single heightmap per scene (gazebo-classic ``rendering/Scene.cc``: "Only one
+Heightmap can be created per Scene") and cannot move one away from the world origin (#2167).
+
 Walls instead of a heightmap (``world.geometry``: mesh, boxes, polylines): both simulators place
 meshes, boxes and polylines anywhere, so in both the model sits at the world origin, the geometry
 is written in map coordinates, and a map point (x, y) is the world point (x, y). One static model
@@ -163,6 +169,21 @@ def model_config(p: Placement, description: str) -> bytes:
 
 def world_sdf(p: Placement, *, world_name: str, comment: str) -> bytes:
     """A world holding a sun and the terrain model (by ``model://`` URI)."""
+    return tiled_world_sdf([p], world_name=world_name, comment=comment)
+
+
+def tiled_world_sdf(placements: Sequence[Placement], *, world_name: str, comment: str) -> bytes:
+    """A world holding a sun and every model of ``placements`` (terrain tiles, by ``model://``
+    URI, each at the world origin: a tile's offset is in its collision pose and visual pos).
+
+    All placements are for one simulator; gz-sim only when there are several heightmaps
+    (Gazebo Classic renders one heightmap per scene and keeps each at the world origin).
+    """
+    if not placements or len({q.simulator for q in placements}) != 1:
+        raise ValueError("placements must be one or more, all for one simulator")
+    p = placements[0]
+    if len(placements) > 1 and p.simulator != GZ:
+        raise ValueError("only gz-sim worlds can hold several heightmap tiles")
     sdf = etree.Element("sdf", version=SDF_VERSION[p.simulator])
     sdf.append(etree.Comment(comment))
     world = _sub(sdf, "world", name=world_name)
@@ -183,10 +204,11 @@ def world_sdf(p: Placement, *, world_name: str, comment: str) -> bytes:
     _sub(sun, "diffuse", "0.8 0.8 0.8 1")
     _sub(sun, "specular", "0.2 0.2 0.2 1")
     _sub(sun, "direction", "-0.5 0.1 -0.9")
-    inc = _sub(world, "include")
-    _sub(inc, "uri", f"model://{p.model_name}")
-    _sub(inc, "name", p.model_name)
-    _sub(inc, "pose", "0 0 0 0 0 0")
+    for q in placements:
+        inc = _sub(world, "include")
+        _sub(inc, "uri", f"model://{q.model_name}")
+        _sub(inc, "name", q.model_name)
+        _sub(inc, "pose", "0 0 0 0 0 0")
     return _bytes(sdf)
 
 
