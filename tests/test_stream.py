@@ -314,3 +314,28 @@ def test_input_error_survives_the_trip_from_a_worker() -> None:
     err = pickle.loads(pickle.dumps(InputError(Path("/x/y.las"), "truncated")))
     assert isinstance(err, InputError)
     assert err.path == Path("/x/y.las") and err.problem == "truncated"
+
+
+def test_bag2world_stream_writes_the_octree_end_points_map(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Laser hits on the room's walls lie 0.025 m off cell boundaries, so float32 (octree) and
+    float64 (tiles) keys agree: the streamed map must be the octree's end-point map, pixel for
+    pixel."""
+    room = synthetic_room("tf", n_scans=12, resolution=0.1)
+    bag = room.write(tmp_path / "room.bag", "ros1")
+    common = ["--resolution", "0.1", "--simulator", "gz", "--no-preview", "--no-filter"]
+    code, out, err = run_cli(
+        capsys, "bag2world", bag, "-o", tmp_path / "s", "--stream", *common
+    )  # fmt: skip
+    assert code == 0, err
+    assert "streamed: 1 task(s) over 12 scan messages" in out
+    code, _, err = run_cli(
+        capsys, "bag2world", bag, "-o", tmp_path / "o", "--insert", "endpoints", *common
+    )  # fmt: skip
+    assert code == 0, err
+    streamed = (tmp_path / "s" / "map" / "map.pgm").read_bytes()
+    assert streamed == (tmp_path / "o" / "map" / "map.pgm").read_bytes()
+    assert (tmp_path / "s" / "map" / "map_gz.yaml").read_bytes() == (
+        tmp_path / "o" / "map" / "map_gz.yaml"
+    ).read_bytes()

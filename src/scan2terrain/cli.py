@@ -480,7 +480,7 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         type=int,
         dest="stream.tile_cells",
         metavar="N",
-        help="grid tile side in cells, a power of two (default 512)",
+        help="grid tile side in cells, a power of two (default 256)",
     )
 
 

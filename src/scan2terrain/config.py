@@ -185,7 +185,7 @@ class StreamConfig:
     chunk_points: int = 2_000_000
     #: Grid tiles are this many cells a side (a power of two): the unit of allocation, merging
     #: and of what a Dask task sends back (24 bytes a cell).
-    tile_cells: int = 512
+    tile_cells: int = 256
     #: Dask: a local cluster of this many worker processes; 0 = no Dask (single process).
     workers: int = 0
     #: Dask: an existing scheduler's address (tcp://HOST:PORT); workers must reach the inputs.

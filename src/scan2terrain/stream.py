@@ -20,6 +20,7 @@ Like ingest.py, this module composes the stages and owns no algorithm.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 from collections.abc import Callable, Iterator, Sequence
@@ -181,20 +182,59 @@ def plan_bag_chunks(
 
 
 def rasterise(chunk: Chunk, job: Job) -> TileSet:
-    """The tiles of one chunk's end points. The unit of work, on the client or a Dask worker."""
+    """The tiles of one chunk's end points. The unit of work, on the client or a Dask worker.
+    The next points are read on a second thread while these are rasterised (both release the
+    GIL), one chunk ahead at most."""
     tiles = TileSet(job.lattice)
-    origin = np.array(job.origin)
-    for points in _chunk_points(chunk, job):
-        tiles.add_points(points - origin if origin.any() else points)
+    for points in _read_ahead(_chunk_points(chunk, job)):
+        tiles.add_points(points)
     return tiles
 
 
+def _read_ahead(items: Iterator[NDArray[np.float64]]) -> Iterator[NDArray[np.float64]]:
+    """``items``, produced on another thread one item ahead; its exceptions re-raised here."""
+    import queue
+    import threading
+
+    box: queue.Queue[tuple[bool, object]] = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                box.put((True, item))
+        except BaseException as exc:  # handed to the consumer, raised there
+            box.put((False, exc))
+            return
+        box.put((False, None))
+
+    worker = threading.Thread(target=produce, name="scan2terrain-read-ahead", daemon=True)
+    worker.start()
+    try:
+        while True:
+            ok, item = box.get()
+            if not ok:
+                if item is not None:
+                    raise item  # type: ignore[misc]
+                return
+            yield item  # type: ignore[misc]
+    finally:
+        stop.set()
+        with contextlib.suppress(queue.Empty):
+            box.get_nowait()  # unblock a producer waiting to put
+        worker.join()
+
+
 def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
+    """The chunk's points less the job's local origin, ``job.step`` at a time."""
     if isinstance(chunk, BagChunk):
         yield from _bag_points(chunk, job)
         return
     from scan2terrain.readers.cloudfile import LAS_SUFFIXES, iter_las, read_cloud
 
+    origin = np.array(job.origin)
     path = Path(chunk.path)
     if path.suffix.lower() in LAS_SUFFIXES:
         yield from iter_las(
@@ -203,11 +243,12 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
             count=chunk.count,
             step=job.step,
             las_classes=job.las_classes,
+            origin=origin,
         )
         return
     points = read_cloud(path).points
     for s in range(0, len(points), job.step):
-        yield points[s : s + job.step]
+        yield points[s : s + job.step] - origin
 
 
 def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
@@ -262,8 +303,6 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
         raise ConfigError(
             "stream.workers/stream.scheduler need Dask: pip install 'scan2terrain[dask]'"
         ) from None
-    import contextlib
-
     st = cfg.stream
     total = TileSet(job.lattice)
     with contextlib.ExitStack() as stack:

@@ -39,7 +39,7 @@ class Lattice:
     (metres, inclusive) of the points that count."""
 
     resolution: float
-    tile: int = 512
+    tile: int = 256
     z_min: float = -math.inf
     z_max: float = math.inf
 

@@ -587,11 +587,12 @@ def iter_las(
     count: int | None = None,
     step: int = LAS_CHUNK,
     las_classes: Collection[int] | None = None,
+    origin: NDArray[np.float64] | None = None,
 ) -> Iterator[NDArray[np.float64]]:
     """Points ``[start, start + count)`` of a LAS/LAZ file (``count`` None: to the end), ``step``
     at a time, as float64 (n, 3) in the file's units (``X * scale + offset``, as laspy computes
-    them), of the requested classes only. Non-finite points are not possible in LAS. Raises
-    InputError naming the file for unreadable or truncated data."""
+    them) less ``origin``, of the requested classes only. Non-finite points are not possible in
+    LAS. Raises InputError naming the file for unreadable or truncated data."""
     import laspy
 
     path = Path(path)
@@ -609,7 +610,7 @@ def iter_las(
                 if len(chunk) == 0:
                     break
                 seen += len(chunk)
-                xyz = _xyz(chunk)
+                xyz = _xyz(chunk, origin)
                 if classes is not None:
                     xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
                 yield xyz
@@ -623,15 +624,22 @@ def iter_las(
         )
 
 
-def _xyz(points: Any) -> NDArray[np.float64]:
-    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, computed into one array
-    (no per-axis temporaries) exactly as laspy scales: ``X * scale + offset``."""
+def _xyz(points: Any, origin: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, exactly as laspy scales
+    them (``X * scale + offset``), less ``origin`` (metres, default none)."""
+    from scan2terrain.readers._las_kernels import scaled_xyz
+
     out = np.empty((len(points), 3), dtype=np.float64)
-    scales, offsets = points.scales, points.offsets
-    for axis, name in enumerate("XYZ"):
-        col = out[:, axis]
-        np.multiply(points.array[name], scales[axis], out=col)
-        col += offsets[axis]
+    arr = points.array
+    scaled_xyz(
+        arr["X"],
+        arr["Y"],
+        arr["Z"],
+        np.asarray(points.scales, dtype=np.float64),
+        np.asarray(points.offsets, dtype=np.float64),
+        np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64),
+        out,
+    )
     return out
 
 
