@@ -701,11 +701,14 @@ def report(result: Any) -> str:
     """How to open what was written, for a human."""
     out = result.out
     walls = getattr(result, "geometry", "heightmap") != "heightmap"
+    rows, cols = getattr(result, "tiles", (1, 1))
+    side = f"{result.heightmap_side}x{result.heightmap_side} px"
+    ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
     lines = [
         f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
         if walls
-        else f"Wrote {out}/ (heightmap {result.heightmap_side}x{result.heightmap_side} px at "
-        f"{result.resolution:g} m/px, heights up to {result.size_z:g} m)"
+        else f"Wrote {out}/ ({ground} at {result.resolution:g} m/px, heights up to "
+        f"{result.size_z:g} m)"
     ]
     for w in result.worlds:
         p = w.placement

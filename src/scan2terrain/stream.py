@@ -368,21 +368,14 @@ def streamed_world(
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid."""
-    from scan2terrain.grids import projection
-    from scan2terrain.pipeline import height_world, occupancy_world
+    from scan2terrain.pipeline import columns_world, occupancy_world
 
     tiles = streamed.tiles
     if tiles.points == 0:
         raise InputError(source, "no point in the z band: nothing to make a grid of")
-    o = cfg.octree
-    if o.grid == "occupancy":
+    if cfg.octree.grid == "occupancy":
         result = occupancy_world(tiles.occupancy(), source, out, cfg, overwrite=overwrite)
     else:
-        heights = tiles.column_stats().to_height_grid(o.height_stat)
-        if o.fill == "nearest":
-            heights = projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
-        elif o.fill == "idw":
-            heights = projection.fill_idw(heights)
-        result = height_world(heights, source, out, cfg, overwrite=overwrite)
+        result = columns_world(tiles.column_stats(), source, out, cfg, overwrite=overwrite)
     result.notes = [*streamed.notes, f"points counted: {tiles.points:,}"]
     return result
