@@ -8,6 +8,7 @@ mid-run; max, min, count and mean must be identical, cell for cell.
 
 from __future__ import annotations
 
+import http.server
 import itertools
 import json
 import os
@@ -16,6 +17,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -339,3 +341,76 @@ def test_bag2world_stream_writes_the_octree_end_points_map(
     assert (tmp_path / "s" / "map" / "map_gz.yaml").read_bytes() == (
         tmp_path / "o" / "map" / "map_gz.yaml"
     ).read_bytes()
+
+
+class _RangeHandler(http.server.SimpleHTTPRequestHandler):
+    """Static files with single ``Range: bytes=a-b`` requests (fsspec reads by range)."""
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+    def do_GET(self) -> None:
+        match = re.fullmatch(r"bytes=(\d+)-(\d*)", self.headers.get("Range", ""))
+        path = Path(self.translate_path(self.path))
+        if match is None or not path.is_file():
+            super().do_GET()
+            return
+        data = path.read_bytes()
+        a = int(match[1])
+        b = min(int(match[2]) if match[2] else len(data) - 1, len(data) - 1)
+        self.send_response(206)
+        self.send_header("Content-Range", f"bytes {a}-{b}/{len(data)}")
+        self.send_header("Content-Length", str(b - a + 1))
+        self.send_header("Accept-Ranges", "bytes")
+        self.end_headers()
+        self.wfile.write(data[a : b + 1])
+
+
+@pytest.fixture
+def http_root(las_tiles: list[Path]) -> Iterator[str]:
+    """The LAS tiles' folder served over HTTP on localhost."""
+    import functools
+    import threading
+
+    handler = functools.partial(_RangeHandler, directory=str(las_tiles[0].parent))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_urls_are_read_by_the_workers(
+    las_tiles: list[Path], one_pass: dict[str, Any], http_root: str
+) -> None:
+    urls = [f"{http_root}/{p.name}" for p in las_tiles]
+    cfg = config(chunk_points=3_000, tile_cells=64, workers=2)
+    got = stream.stream_clouds(urls, cfg)
+    assert_same_grid(stats(got.tiles), one_pass)
+    assert any(n.startswith("tile_00.las: 20,000 points") for n in got.notes)
+
+
+def test_bad_urls_are_one_line_errors(
+    tmp_path: Path, http_root: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for url, why in (
+        (f"{http_root}/missing.laz", "cannot open the URL|cannot read"),
+        (f"{http_root}/tile_00.las?x=1", None),  # a query is fine
+        (f"{http_root}/notes.pcd", "LAS/LAZ files only"),
+    ):
+        out = tmp_path / f"w{len(why or '')}"
+        code, _, err = run_cli(
+            capsys, "cloud2world", url, "-o", out, "--stream", "--grid", "height",
+            "--resolution", "2",
+        )  # fmt: skip
+        if why is None:
+            assert code == 0, err
+            continue
+        assert code == 2, err
+        assert url in err and re.search(why, err) and len(err.strip().splitlines()) == 1, err
+        assert not out.exists()
+    code, _, err = run_cli(capsys, "cloud2world", f"{http_root}/tile_00.las", "-o", tmp_path / "x")
+    assert code == 2 and "URLs are read with --stream" in err

@@ -395,7 +395,12 @@ def _bag_commands(sub: Any) -> None:
         "--stream --workers 2\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    c.add_argument("clouds", type=Path, nargs="+", help="point-cloud file(s)")
+    c.add_argument(
+        "clouds",
+        type=_path_or_url,
+        nargs="+",
+        help="point-cloud file(s); with --stream also LAS/LAZ URLs (http(s)://, s3://, ...)",
+    )
     _common(c)
     _geometry_options(c)
     _octree_options(c)
@@ -440,6 +445,13 @@ def _bag_commands(sub: Any) -> None:
     _scan_options(n, bag=True)
     n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+
+def _path_or_url(text: str) -> Path | str:
+    """A URL stays a string (Path would fold its '//')."""
+    from scan2terrain.readers.cloudfile import is_url
+
+    return text if is_url(text) else Path(text)
 
 
 def _stream_options(p: argparse.ArgumentParser) -> None:

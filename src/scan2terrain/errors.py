@@ -18,11 +18,14 @@ class InputError(Scan2TerrainError, ValueError):
     """An input file or value is unusable. The message names the file and the problem."""
 
     def __init__(self, path: Path | str | None, problem: str) -> None:
-        self.path = None if path is None else Path(path)
+        # A URL stays a string: Path would fold its '//'.
+        self.path: Path | str | None = (
+            path if path is None or (isinstance(path, str) and "://" in path) else Path(path)
+        )
         self.problem = problem
         super().__init__(f"{path}: {problem}" if path is not None else problem)
 
-    def __reduce__(self) -> tuple[type[InputError], tuple[Path | None, str]]:
+    def __reduce__(self) -> tuple[type[InputError], tuple[Path | str | None, str]]:
         # Pickled with its two arguments, so it crosses to and from Dask workers intact.
         return (type(self), (self.path, self.problem))
 

@@ -294,7 +294,7 @@ def read_clouds(
 
 
 def cloud2world(
-    files: Sequence[Path],
+    files: Sequence[Path | str],
     out: Path,
     cfg: Config,
     *,
@@ -307,12 +307,18 @@ def cloud2world(
     from scan2terrain.octree.bt import bt_bytes
 
     refuse_existing(out, overwrite)
+    from scan2terrain.readers.cloudfile import is_url
+
     if streaming(cfg):
         from scan2terrain import stream
 
         streamed = stream.stream_clouds(files, cfg, stream_progress)
-        return stream.streamed_world(streamed, Path(files[0]), out, cfg, overwrite=overwrite)
-    clouds, _, notes = read_clouds(files, cfg)
+        source = Path(str(files[0]).split("?")[0])
+        return stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
+    for f in files:
+        if is_url(f):
+            raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
+    clouds, _, notes = read_clouds([Path(f) for f in files], cfg)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
     outside: dict[Path, int] = {}

@@ -111,11 +111,19 @@ def lattice_for(cfg: Config) -> Lattice:
     )
 
 
-def plan_clouds(files: Sequence[Path], cfg: Config) -> tuple[list[CloudChunk], Job, list[str]]:
+def plan_clouds(
+    files: Sequence[Path | str], cfg: Config
+) -> tuple[list[CloudChunk], Job, list[str]]:
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
-    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, las_info, read_cloud
+    from scan2terrain.readers.cloudfile import (
+        LAS_SUFFIXES,
+        is_url,
+        las_info,
+        read_cloud,
+        url_suffix,
+    )
 
     st = cfg.stream
     per_task = st.chunk_points * CHUNKS_PER_TASK
@@ -126,8 +134,10 @@ def plan_clouds(files: Sequence[Path], cfg: Config) -> tuple[list[CloudChunk], J
     total = 0
     classes = cfg.scans.las_classes
     for f in files:
-        path = Path(f).resolve()  # workers may run elsewhere: the path as the client sees it
-        if path.suffix.lower() in LAS_SUFFIXES:
+        # Workers may run elsewhere: an absolute path, or the URL as given.
+        path: Path | str = str(f) if is_url(f) else Path(f).resolve()
+        name = Path(str(path).split("?")[0]).name
+        if url_suffix(path) in LAS_SUFFIXES:
             info = las_info(path)
             if info.points == 0:
                 raise InputError(path, "no point in the cloud (the header says 0)")
@@ -139,6 +149,8 @@ def plan_clouds(files: Sequence[Path], cfg: Config) -> tuple[list[CloudChunk], J
             hi = np.maximum(hi, info.maxs)
             n, fmt = info.points, info.format
         else:
+            if is_url(path):
+                raise InputError(path, "URLs are read for LAS/LAZ files only")
             if classes is not None:
                 raise InputError(path, "LAS classes can only be selected in .las/.laz files")
             cloud = read_cloud(path)
@@ -147,7 +159,7 @@ def plan_clouds(files: Sequence[Path], cfg: Config) -> tuple[list[CloudChunk], J
             hi = np.maximum(hi, cloud.points.max(axis=0))
             n, fmt = len(cloud.points), cloud.format
         total += n
-        notes.append(f"{path.name}: {n:,} points ({fmt})")
+        notes.append(f"{name}: {n:,} points ({fmt})")
     origin = np.zeros(3)
     if cfg.scans.local_origin == "auto" and max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
         origin = np.round((lo + hi) / 2)
@@ -181,11 +193,11 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(chunk: Chunk, job: Job) -> TileSet:
-    """The tiles of one chunk's end points. The unit of work, on the client or a Dask worker.
-    The next points are read on a second thread while these are rasterised (both release the
-    GIL), one chunk ahead at most."""
-    tiles = TileSet(job.lattice)
+def rasterise(chunk: Chunk, job: Job, tiles: TileSet | None = None) -> TileSet:
+    """The tiles of one chunk's end points, added to ``tiles`` (default: new ones). The unit of
+    work, on the client or a Dask worker. The next points are read on a second thread while
+    these are rasterised (both release the GIL), one chunk ahead at most."""
+    tiles = TileSet(job.lattice) if tiles is None else tiles
     for points in _read_ahead(_chunk_points(chunk, job)):
         tiles.add_points(points)
     return tiles
@@ -232,13 +244,12 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
     if isinstance(chunk, BagChunk):
         yield from _bag_points(chunk, job)
         return
-    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, iter_las, read_cloud
+    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, iter_las, read_cloud, url_suffix
 
     origin = np.array(job.origin)
-    path = Path(chunk.path)
-    if path.suffix.lower() in LAS_SUFFIXES:
+    if url_suffix(chunk.path) in LAS_SUFFIXES:
         yield from iter_las(
-            path,
+            chunk.path,
             start=chunk.start,
             count=chunk.count,
             step=job.step,
@@ -246,7 +257,7 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
             origin=origin,
         )
         return
-    points = read_cloud(path).points
+    points = read_cloud(chunk.path).points
     for s in range(0, len(points), job.step):
         yield points[s : s + job.step] - origin
 
@@ -287,7 +298,7 @@ def run(
         return _run_dask(chunks, job, cfg, progress)
     total = TileSet(job.lattice)
     for i, chunk in enumerate(chunks):
-        total.merge(rasterise(chunk, job))
+        rasterise(chunk, job, total)  # straight into the result: the same sums, no merge
         if progress is not None:
             progress(i + 1, len(chunks), total.points)
     return total
@@ -335,7 +346,9 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
 # --- commands ---------------------------------------------------------------------------------
 
 
-def stream_clouds(files: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
+def stream_clouds(
+    files: Sequence[Path | str], cfg: Config, progress: Progress | None = None
+) -> Streamed:
     chunks, job, notes = plan_clouds(files, cfg)
     tiles = run(chunks, job, cfg, progress)
     return Streamed(tiles, tuple(notes))

@@ -24,6 +24,7 @@ do); every problem is an :class:`InputError` naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import re
 import warnings
@@ -155,7 +156,7 @@ def read_cloud(path: Path | str, *, las_classes: Collection[int] | None = None) 
     return Cloud(np.ascontiguousarray(points, dtype=np.float64), path, fmt, len(raw))
 
 
-def _classes(path: Path, suffix: str, las_classes: Collection[int]) -> NDArray[np.int64]:
+def _classes(path: Path | str, suffix: str, las_classes: Collection[int]) -> NDArray[np.int64]:
     if suffix not in LAS_SUFFIXES:
         raise InputError(path, "LAS classes can only be selected in .las/.laz files")
     classes = np.array(sorted({int(c) for c in las_classes}), dtype=np.int64)
@@ -539,45 +540,88 @@ class _Truncated(Exception):
 class LasInfo:
     """A LAS/LAZ header: point count and bounds (the file's units) without reading points."""
 
-    path: Path
+    path: Path | str  #: a local path, or a URL as given
     points: int
     mins: tuple[float, float, float]
     maxs: tuple[float, float, float]
     format: str
 
 
+def is_url(name: Path | str) -> bool:
+    """``scheme://...`` (http, https, s3, file, ...), as opposed to a local path."""
+    return re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(name)) is not None
+
+
+def url_suffix(name: Path | str) -> str:
+    """The lower-case extension of a path or URL (a URL's query and fragment ignored)."""
+    text = re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else str(name)
+    return Path(text).suffix.lower()
+
+
+@contextlib.contextmanager
+def _las_source(name: Path | str) -> Iterator[Any]:
+    """What ``laspy.open`` reads: a local path, or a file object fsspec opens for a URL (any
+    protocol fsspec has: http(s) with aiohttp, s3 with s3fs, ...)."""
+    if not is_url(name):
+        path = Path(name)
+        if not path.is_file():
+            raise InputError(path, "point-cloud file not found")
+        if path.stat().st_size == 0:
+            raise InputError(path, "empty file")
+        yield path
+        return
+    url = str(name)
+    try:
+        import fsspec  # type: ignore[import-untyped]
+    except ImportError:
+        raise InputError(url, "URLs need fsspec: pip install 'scan2terrain[dask]'") from None
+    try:
+        with fsspec.open(url, "rb") as f:
+            yield f
+    except (FileNotFoundError, ImportError, ValueError) as exc:
+        raise InputError(url, f"cannot open the URL ({type(exc).__name__}: {exc})") from None
+
+
 def las_info(path: Path | str) -> LasInfo:
-    """The header of a LAS/LAZ file. Raises InputError for a missing, empty, foreign or
-    truncated (uncompressed: shorter than its header's points need) file."""
+    """The header of a LAS/LAZ file (a path, or a URL fsspec can open). Raises InputError for a
+    missing, empty, foreign or truncated (uncompressed: shorter than its header's points need)
+    file."""
     import laspy
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "point-cloud file not found")
+    where: Path | str = path if is_url(path) else Path(path)
     try:
-        size = path.stat().st_size
-        if size == 0:
-            raise InputError(path, "empty file")
-        with laspy.open(path) as reader:
+        with _las_source(where) as source, laspy.open(source) as reader:
             h = reader.header
             n = int(h.point_count)
             if not h.are_points_compressed:
+                size = _size(source)
                 need = int(h.offset_to_point_data) + n * int(h.point_format.size)
                 if size < need:
                     raise InputError(
-                        path,
+                        where,
                         f"truncated LAS file: {n} points of {h.point_format.size} bytes need "
                         f"{need} bytes, the file has {size}",
                     )
             version = f"{h.version.major}.{h.version.minor}"
-            fmt = f"{path.suffix.lower()[1:]} {version} point format {h.point_format.id}"
+            fmt = f"{url_suffix(where)[1:]} {version} point format {h.point_format.id}"
             mins = tuple(float(v) for v in h.mins)
             maxs = tuple(float(v) for v in h.maxs)
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from None
-    return LasInfo(path, n, mins, maxs, fmt)  # type: ignore[arg-type]
+        raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from None
+    return LasInfo(where, n, mins, maxs, fmt)  # type: ignore[arg-type]  # 3-tuples
+
+
+def _size(source: Any) -> int:
+    if isinstance(source, Path):
+        return source.stat().st_size
+    size = getattr(source, "size", None)
+    if size is None:
+        here = source.tell()
+        size = source.seek(0, 2)
+        source.seek(here)
+    return int(size)
 
 
 def iter_las(
@@ -595,12 +639,13 @@ def iter_las(
     LAS. Raises InputError naming the file for unreadable or truncated data."""
     import laspy
 
-    path = Path(path)
-    classes = None if las_classes is None else _classes(path, path.suffix.lower(), las_classes)
+    where: Path | str = path if is_url(path) else Path(path)
+    suffix = url_suffix(where)
+    classes = None if las_classes is None else _classes(where, suffix, las_classes)
     want = -1
     seen = 0
     try:
-        with laspy.open(path) as reader:
+        with _las_source(where) as source, laspy.open(source) as reader:
             total = int(reader.header.point_count)
             want = total - start if count is None else min(count, total - start)
             if start:
@@ -617,10 +662,10 @@ def iter_las(
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from None
+        raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from None
     if seen != want:
         raise InputError(
-            path, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
+            where, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
         )
 
 
