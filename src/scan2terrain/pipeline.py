@@ -55,7 +55,6 @@ from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
 from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
 if TYPE_CHECKING:
-    from scan2terrain.grids.projection import ColumnStats
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers.dem import Dem
 
@@ -340,29 +339,20 @@ def voxels_world(
     stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max)
     if not stats.known.any():
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
-    return columns_world(stats, source, out, cfg, overwrite=overwrite, extra=extra)
+    heights = fill_holes(stats.to_height_grid(o.height_stat), cfg)
+    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra)
 
 
-def columns_world(
-    stats: ColumnStats,
-    source: Path,
-    out: Path,
-    cfg: Config,
-    *,
-    overwrite: bool,
-    extra: dict[str, bytes] | None = None,
-) -> Result:
-    """Column statistics (octree voxels or streamed points) to a world folder: the
-    ``octree.height_stat`` heights, holes filled as ``octree.fill`` says, as a height grid."""
+def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
+    """Unknown cells of a 2.5D grid filled as ``octree.fill`` says (none, nearest, idw)."""
     from scan2terrain.grids import projection
 
     o = cfg.octree
-    heights = stats.to_height_grid(o.height_stat)
     if o.fill == "nearest":
-        heights = projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
-    elif o.fill == "idw":
-        heights = projection.fill_idw(heights)
-    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra)
+        return projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
+    if o.fill == "idw":
+        return projection.fill_idw(heights)
+    return heights
 
 
 def build_octree(source: Path, cfg: Config) -> VoxelOctree:

@@ -381,7 +381,7 @@ def streamed_world(
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid."""
-    from scan2terrain.pipeline import columns_world, occupancy_world
+    from scan2terrain.pipeline import fill_holes, height_world, occupancy_world
 
     tiles = streamed.tiles
     if tiles.points == 0:
@@ -389,6 +389,7 @@ def streamed_world(
     if cfg.octree.grid == "occupancy":
         result = occupancy_world(tiles.occupancy(), source, out, cfg, overwrite=overwrite)
     else:
-        result = columns_world(tiles.column_stats(), source, out, cfg, overwrite=overwrite)
+        heights = fill_holes(tiles.heights(cfg.octree.height_stat), cfg)
+        result = height_world(heights, source, out, cfg, overwrite=overwrite)
     result.notes = [*streamed.notes, f"points counted: {tiles.points:,}"]
     return result

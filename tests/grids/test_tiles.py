@@ -161,3 +161,16 @@ def test_only_tiles_with_points_take_memory() -> None:
     assert tiles.nbytes == 2 * 64 * 24
     state = pickle.dumps(tiles)
     assert len(state) < 10_000  # only the tiles in use travel
+
+
+@pytest.mark.parametrize("stat", ["max", "min", "mean"])
+def test_one_statistic_is_the_column_stats_one(stat: str) -> None:
+    tiles = TileSet(Lattice(0.25, 4, z_min=-0.5))
+    tiles.add_points(cloud(5))
+    one = tiles.heights(stat)
+    full = tiles.column_stats().to_height_grid(stat)
+    assert one.origin == full.origin
+    assert np.array_equal(one.known, full.known)
+    assert np.array_equal(one.heights, full.heights, equal_nan=True)
+    with pytest.raises(ValueError, match="stat"):
+        tiles.heights("median")

@@ -18,6 +18,7 @@ them), not voxel centres; the z band tests the points' z. The mean is exact to 1
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,8 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.grids import _tile_kernels as K
-from scan2terrain.grids.projection import ColumnStats
-from scan2terrain.types import OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
+from scan2terrain.grids.projection import STATS, ColumnStats
+from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
 #: Heights are summed as integers in units of 1/SUM_SCALE m (2^-14 m, 0.06 mm): integer sums
 #: are associative, float sums are not. int64 holds 5.6e14 m of summed height per cell.
@@ -194,44 +195,58 @@ class TileSet:
             raise ValueError("no point in the z band: the grid is empty")
         return int(box[0]), int(box[1]), int(box[2]), int(box[3])
 
-    def _paste(self, name: str, box: tuple[int, int, int, int], dtype: type[Any]) -> NDArray[Any]:
-        """One storage array as a dense grid over ``box`` (zeros where no tile is)."""
+    def _paste(
+        self,
+        box: tuple[int, int, int, int],
+        values: Callable[[NDArray[np.int64]], NDArray[Any]],
+        dtype: type[Any],
+        fill: Any = 0,
+    ) -> NDArray[Any]:
+        """A dense grid over ``box`` of ``values(records)`` computed tile by tile (``records``:
+        one tile's (t, t, 3) int64 cell records), ``fill`` where no tile is. Only one tile's
+        temporaries exist at a time: the peak is the tiles plus the grid returned."""
         r0, c0, r1, c1 = box
         t = self.lattice.tile
-        out = np.zeros((r1 - r0 + 1, c1 - c0 + 1), dtype=dtype)
-        source: NDArray[Any] = getattr(self, name)
+        out = np.full((r1 - r0 + 1, c1 - c0 + 1), fill, dtype=dtype)
         for (tr, tc), s in self.index.items():
             # The tile's rows/cols clipped to the box, in global cells.
             gr0, gc0 = max(tr * t, r0), max(tc * t, c0)
             gr1, gc1 = min(tr * t + t, r1 + 1), min(tc * t + t, c1 + 1)
             if gr0 >= gr1 or gc0 >= gc1:
                 continue
-            tile = source[s].reshape(t, t)
-            out[gr0 - r0 : gr1 - r0, gc0 - c0 : gc1 - c0] = tile[
+            records = self.cells[s].reshape(t, t, 3)[
                 gr0 - tr * t : gr1 - tr * t, gc0 - tc * t : gc1 - tc * t
             ]
+            out[gr0 - r0 : gr1 - r0, gc0 - c0 : gc1 - c0] = values(records)
         return out
 
     def origin_of(self, box: tuple[int, int, int, int]) -> Pose2D:
         r = self.lattice.resolution
         return Pose2D(box[1] * r, box[0] * r, 0.0)
 
+    def heights(self, stat: str) -> HeightGrid:
+        """One statistic of the points' z per cell (``"max"``, ``"min"`` or ``"mean"``, metres,
+        float32, NaN where no point) over the bounding box of the cells with a point; the same
+        values as :meth:`column_stats`, without its other grids (5 bytes a cell, not 17)."""
+        if stat not in STATS:
+            raise ValueError(f"stat must be one of {STATS}, got {stat!r}")
+        box = self._known_box()
+        heights = self._paste(box, _STAT[stat], np.float32, np.nan)
+        known = self._paste(box, _known, np.bool_, False)
+        return HeightGrid(heights, known, self.lattice.resolution, self.origin_of(box))
+
     def column_stats(self) -> ColumnStats:
         """The merged grid as :class:`ColumnStats` over the bounding box of the cells with a
         point (the box does not depend on the tile size): max/min/mean z in metres, NaN where no
         point; count (int32, saturated)."""
         box = self._known_box()
-        count = self._paste("count", box, np.int64)
-        known = count > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = self._paste("zsum", box, np.int64) / count / SUM_SCALE
-        nan = np.float32(np.nan)
+        z = {k: self._paste(box, f, np.float32, np.nan) for k, f in _STAT.items()}
         return ColumnStats(
-            max_z=np.where(known, self._paste("zmax", box, np.float32), nan).astype(np.float32),
-            min_z=np.where(known, self._paste("zmin", box, np.float32), nan).astype(np.float32),
-            mean_z=np.where(known, mean, np.nan).astype(np.float32),
-            count=np.minimum(count, np.iinfo(np.int32).max).astype(np.int32),
-            known=known,
+            max_z=z["max"],
+            min_z=z["min"],
+            mean_z=z["mean"],
+            count=self._paste(box, _count32, np.int32),
+            known=self._paste(box, _known, np.bool_, False),
             resolution=self.lattice.resolution,
             origin=self.origin_of(box),
         )
@@ -240,6 +255,44 @@ class TileSet:
         """Cells with a point occupied, the rest unknown: end points see no free space. The same
         grid as the octree's end points projected (``project_occupancy``) without a z band."""
         box = self._known_box()
-        known = self._paste("count", box, np.int64) > 0
-        data = np.where(known, np.int8(OCCUPIED), np.int8(UNKNOWN)).astype(np.int8)
+        data = self._paste(box, _occupancy, np.int8, UNKNOWN)
         return OccupancyGrid(data, self.lattice.resolution, self.origin_of(box))
+
+
+# Per-tile views of the cell records (count, z sum, float32 min|max): each returns the values of
+# one statistic for a (rows, cols, 3) block, NaN / False / UNKNOWN where a cell has no point.
+
+
+def _known(r: NDArray[np.int64]) -> NDArray[np.bool_]:
+    known: NDArray[np.bool_] = r[..., 0] > 0
+    return known
+
+
+def _count32(r: NDArray[np.int64]) -> NDArray[np.int32]:
+    return np.minimum(r[..., 0], np.iinfo(np.int32).max).astype(np.int32)
+
+
+def _word(r: NDArray[np.int64], k: int) -> NDArray[np.float32]:
+    # The third int64 holds the two float32 words 4 and 5 of the record: min (k = 0), max (1).
+    z = np.ascontiguousarray(r[..., 2]).view(np.float32).reshape(*r.shape[:-1], 2)[..., k]
+    out: NDArray[np.float32] = np.where(r[..., 0] > 0, z, np.float32(np.nan))
+    return out
+
+
+def _mean(r: NDArray[np.int64]) -> NDArray[np.float32]:
+    n = r[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = r[..., 1] / n / SUM_SCALE
+    return np.where(n > 0, mean, np.nan).astype(np.float32)
+
+
+def _occupancy(r: NDArray[np.int64]) -> NDArray[np.int8]:
+    data: NDArray[np.int8] = np.where(r[..., 0] > 0, np.int8(OCCUPIED), np.int8(UNKNOWN))
+    return data
+
+
+_STAT: dict[str, Callable[[NDArray[np.int64]], NDArray[np.float32]]] = {
+    "max": lambda r: _word(r, 1),
+    "min": lambda r: _word(r, 0),
+    "mean": _mean,
+}
