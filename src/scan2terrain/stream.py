@@ -26,7 +26,7 @@ import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,8 @@ FAR = 1000.0
 CHUNKS_PER_TASK = 8
 #: A bag task reads about this many scan messages.
 SCANS_PER_TASK = 256
+
+T = TypeVar("T")
 
 #: Called after every task: (tasks done, tasks in all, points counted so far).
 Progress = Callable[[int, int, int], None]
@@ -203,7 +205,7 @@ def rasterise(chunk: Chunk, job: Job, tiles: TileSet | None = None) -> TileSet:
     return tiles
 
 
-def _read_ahead(items: Iterator[NDArray[np.float64]]) -> Iterator[NDArray[np.float64]]:
+def _read_ahead(items: Iterator[T]) -> Iterator[T]:
     """``items``, produced on another thread one item ahead; its exceptions re-raised here."""
     import queue
     import threading
@@ -296,12 +298,26 @@ def run(
     st = cfg.stream
     if st.workers or st.scheduler:
         return _run_dask(chunks, job, cfg, progress)
+    # Straight into the result (the same sums, no merge), reading ahead across chunks: a file
+    # of one chunk is read while the previous one is rasterised.
     total = TileSet(job.lattice)
-    for i, chunk in enumerate(chunks):
-        rasterise(chunk, job, total)  # straight into the result: the same sums, no merge
-        if progress is not None:
-            progress(i + 1, len(chunks), total.points)
+    for i, points in _read_ahead(_numbered_points(chunks, job)):
+        if points is None:  # chunk i is done
+            if progress is not None:
+                progress(i + 1, len(chunks), total.points)
+            continue
+        total.add_points(points)
     return total
+
+
+def _numbered_points(
+    chunks: Sequence[Chunk], job: Job
+) -> Iterator[tuple[int, NDArray[np.float64] | None]]:
+    """(chunk number, points) for every piece of every chunk, then (chunk number, None)."""
+    for i, chunk in enumerate(chunks):
+        for points in _chunk_points(chunk, job):
+            yield i, points
+        yield i, None
 
 
 def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None) -> TileSet:
