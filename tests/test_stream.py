@@ -100,7 +100,7 @@ def test_tiled_streamed_result_is_the_one_pass_result(
 ) -> None:
     cfg = config(chunk_points=1_500, tile_cells=16)
     chunks, _, notes = stream.plan_clouds(las_tiles, cfg)
-    assert len(chunks) == 6 * 2  # 20,000 points a file in tasks of 8 x 1,500
+    assert len(chunks) == 6 * 4  # 20,000 points a file in ranges of 4 x 1,500
     got = stream.stream_clouds(las_tiles, cfg)
     assert got.tiles.points == 6 * 20_000
     assert_same_grid(stats(got.tiles), one_pass)
@@ -209,7 +209,7 @@ def test_bag_streamed_equals_its_hits_rasterised_on_one_process_and_on_dask(
     whole = TileSet(stream.lattice_for(cfg))
     whole.add_points(hits)
     local = stream.stream_bag([bag], cfg)
-    assert any("streamed: 6 task(s)" in n for n in local.notes)
+    assert any("streamed: 6 piece(s)" in n for n in local.notes)
     assert local.tiles.points == len(hits)
     assert_same_grid(stats(local.tiles), stats(whole))
     cfg.stream = replace(cfg.stream, workers=2)
@@ -242,7 +242,7 @@ def test_cli_stream_and_workers_write_the_same_world(
         capsys, "cloud2world", *las_tiles, "-o", tmp_path / "a", "--stream", *common
     )
     assert code == 0, err
-    assert "streamed: 6 task(s) over 120,000 points" in out
+    assert "streamed: 6 piece(s) over 120,000 points" in out
     assert "points counted: 119,760" in out  # class 1 (every 500th point) dropped
     code, _, err = run_cli(
         capsys, "cloud2world", *las_tiles, "-o", tmp_path / "b", "--workers", "2", *common
@@ -331,7 +331,7 @@ def test_bag2world_stream_writes_the_octree_end_points_map(
         capsys, "bag2world", bag, "-o", tmp_path / "s", "--stream", *common
     )  # fmt: skip
     assert code == 0, err
-    assert "streamed: 1 task(s) over 12 scan messages" in out
+    assert "streamed: 1 piece(s) over 12 scan messages" in out
     code, _, err = run_cli(
         capsys, "bag2world", bag, "-o", tmp_path / "o", "--insert", "endpoints", *common
     )  # fmt: skip

@@ -41,8 +41,9 @@ if TYPE_CHECKING:
 
 #: Beyond this distance from the origin (metres) cloud files get a local origin (as ingest.FAR).
 FAR = 1000.0
-#: A task reads this many chunks of ``stream.chunk_points`` from a LAS/LAZ file.
-CHUNKS_PER_TASK = 8
+#: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
+#: file, or several small files (fewer, larger results to send back and merge).
+CHUNKS_PER_TASK = 4
 #: A bag task reads about this many scan messages.
 SCANS_PER_TASK = 256
 
@@ -54,11 +55,13 @@ Progress = Callable[[int, int, int], None]
 
 @dataclass(frozen=True)
 class CloudChunk:
-    """Points ``[start, start + count)`` of a cloud file (``count`` None: the whole file)."""
+    """Points ``[start, start + count)`` of a cloud file (``count`` None: the whole file, of
+    ``size`` points)."""
 
     path: str
     start: int = 0
     count: int | None = None
+    size: int = 0
 
 
 @dataclass(frozen=True)
@@ -144,7 +147,9 @@ def plan_clouds(
             if info.points == 0:
                 raise InputError(path, "no point in the cloud (the header says 0)")
             chunks += [
-                CloudChunk(str(path), s, min(per_task, info.points - s))
+                CloudChunk(
+                    str(path), s, min(per_task, info.points - s), min(per_task, info.points - s)
+                )
                 for s in range(0, info.points, per_task)
             ]
             lo = np.minimum(lo, info.mins)
@@ -156,7 +161,7 @@ def plan_clouds(
             if classes is not None:
                 raise InputError(path, "LAS classes can only be selected in .las/.laz files")
             cloud = read_cloud(path)
-            chunks.append(CloudChunk(str(path)))
+            chunks.append(CloudChunk(str(path), size=len(cloud.points)))
             lo = np.minimum(lo, cloud.points.min(axis=0))
             hi = np.maximum(hi, cloud.points.max(axis=0))
             n, fmt = len(cloud.points), cloud.format
@@ -176,7 +181,7 @@ def plan_clouds(
         st.chunk_points,
         None if classes is None else tuple(classes),
     )
-    notes.append(f"streamed: {len(chunks)} task(s) over {total:,} points")
+    notes.append(f"streamed: {len(chunks)} piece(s) over {total:,} points")
     return chunks, job, notes
 
 
@@ -195,14 +200,33 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(chunk: Chunk, job: Job, tiles: TileSet | None = None) -> TileSet:
-    """The tiles of one chunk's end points, added to ``tiles`` (default: new ones). The unit of
-    work, on the client or a Dask worker. The next points are read on a second thread while
-    these are rasterised (both release the GIL), one chunk ahead at most."""
+def rasterise(task: Sequence[Chunk], job: Job, tiles: TileSet | None = None) -> TileSet:
+    """The tiles of a task's end points (one or more chunks), added to ``tiles`` (default: new
+    ones). The unit of work, on the client or a Dask worker."""
     tiles = TileSet(job.lattice) if tiles is None else tiles
-    for points in _read_ahead(_chunk_points(chunk, job)):
-        tiles.add_points(points)
+    for _, points in _read_ahead(_numbered_points(task, job)):
+        if points is not None:
+            tiles.add_points(points)
     return tiles
+
+
+def tasks_of(chunks: Sequence[Chunk], points_per_task: int) -> list[tuple[Chunk, ...]]:
+    """Consecutive chunks grouped into tasks of about ``points_per_task`` points (files are
+    listed side by side, usually neighbours, so a task's tiles overlap); a bag slice is a task
+    of its own."""
+    tasks: list[tuple[Chunk, ...]] = []
+    group: list[Chunk] = []
+    held = 0
+    for chunk in chunks:
+        size = chunk.size if isinstance(chunk, CloudChunk) else points_per_task
+        if group and held + size > points_per_task:
+            tasks.append(tuple(group))
+            group, held = [], 0
+        group.append(chunk)
+        held += size
+    if group:
+        tasks.append(tuple(group))
+    return tasks
 
 
 def _read_ahead(items: Iterator[T]) -> Iterator[T]:
@@ -321,7 +345,8 @@ def _numbered_points(
 
 
 def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None) -> TileSet:
-    """The chunks as Dask tasks; results merged on the client as they complete. A task whose
+    """The chunks as Dask tasks (:func:`tasks_of`); results merged on the client as they
+    complete. A task whose
     worker dies is run again by Dask on another worker, and its result counts once: only a
     completed task's result is merged, and every task completes once."""
     try:
@@ -350,7 +375,8 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
                 )
             )
             client = stack.enter_context(Client(cluster))
-        futures = client.map(rasterise, list(chunks), job=job, pure=False)
+        tasks = tasks_of(chunks, cfg.stream.chunk_points * CHUNKS_PER_TASK)
+        futures = client.map(rasterise, tasks, job=job, pure=False)
         for done, future in enumerate(as_completed(futures), start=1):
             total.merge(future.result())
             future.release()
@@ -387,7 +413,7 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     chunks = plan_bag_chunks(bags, lo, hi, messages)
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
     tiles = run(chunks, job, cfg, progress)
-    notes = [*plan.reasons, f"streamed: {len(chunks)} task(s) over {messages:,} scan messages"]
+    notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
     return Streamed(tiles, tuple(notes))
 
 
