@@ -270,3 +270,35 @@ def our_tree(
     for points, origin in scans:
         tree.insert_scan(points, origin, max_range=max_range)
     return tree
+
+
+def octomap_endpoints(
+    octomap: ModuleType, resolution: float, calls: list[Any], tree: Any = None
+) -> Any:
+    """OctoMap reference for insert_endpoints: per call, each distinct voxel (keys by
+    OctoMap's own coordToKey) gets one updateNode(key, occupied=True); into ``tree`` if given
+    (e.g. one with another sensor model), else a new OcTree."""
+    tree = octomap.OcTree(resolution) if tree is None else tree
+    for points in calls:
+        keys = set()
+        for p in np.asarray(points, dtype=np.float64):
+            k = tree.coordToKey(p)
+            keys.add((k[0], k[1], k[2]))
+        for kx, ky, kz in sorted(keys):
+            key = octomap.OcTreeKey()
+            key[0], key[1], key[2] = kx, ky, kz
+            tree.updateNode(key, True)
+    return tree
+
+
+def assert_identical(agreement: Agreement, label: str, *, empty_ok: bool = False) -> None:
+    """The issue's bar (>= 99.99% same state and log-odds) and exact voxel-by-voxel equality."""
+    print(f"\n{label}: {agreement}")
+    assert empty_ok or agreement.union > 0, label
+    assert agreement.state_fraction >= 0.9999, f"{label}: {agreement}"
+    assert agreement.logodds_fraction >= 0.9999, f"{label}: {agreement}"
+    # exact: the same set of known voxels, every log-odds bit-identical
+    assert agreement.ours == agreement.reference == agreement.common == agreement.union, (
+        f"{label}: {agreement}"
+    )
+    assert agreement.same_logodds == agreement.union, f"{label}: {agreement}"

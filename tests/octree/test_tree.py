@@ -24,10 +24,11 @@ from scan2terrain.errors import InputError
 from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.tree import InsertStats, SensorModel, VoxelOctree
 from tests.octree._octomap_ref import (
-    Agreement,
+    assert_identical,
     compare,
     import_octomap,
     load_scan,
+    octomap_endpoints,
     octomap_leaves,
     octomap_leaves_iterated,
     octomap_tree,
@@ -56,19 +57,6 @@ def fr079() -> Scan:
 def fr079_octomap_01(octomap: ModuleType, fr079: Scan) -> Any:
     """OctoMap's tree of FR-079 at 0.1 m (shared: OctoMap takes seconds per insertion)."""
     return octomap_tree(octomap, 0.1, [fr079])
-
-
-def assert_identical(agreement: Agreement, label: str, *, empty_ok: bool = False) -> None:
-    """The issue's bar (>= 99.99% same state and log-odds) and exact voxel-by-voxel equality."""
-    print(f"\n{label}: {agreement}")
-    assert empty_ok or agreement.union > 0, label
-    assert agreement.state_fraction >= 0.9999, f"{label}: {agreement}"
-    assert agreement.logodds_fraction >= 0.9999, f"{label}: {agreement}"
-    # exact: the same set of known voxels, every log-odds bit-identical
-    assert agreement.ours == agreement.reference == agreement.common == agreement.union, (
-        f"{label}: {agreement}"
-    )
-    assert agreement.same_logodds == agreement.union, f"{label}: {agreement}"
 
 
 def yaw_pose(points: NDArray[np.float64], yaw: float, shift: tuple[float, float, float]) -> Scan:
@@ -227,22 +215,6 @@ def test_long_beams_beyond_the_dense_box_equal_octomap(
     assert stats.out_of_range == 4
     assert stats.hits == 36
     assert_identical(compare(ours, ref), "40 beams of 200-320 m at 0.02 m")
-
-
-def octomap_endpoints(octomap: ModuleType, resolution: float, calls: list[Any]) -> Any:
-    """OctoMap reference for insert_endpoints: per call, each distinct voxel (keys by
-    OctoMap's own coordToKey) gets one updateNode(key, occupied=True)."""
-    tree = octomap.OcTree(resolution)
-    for points in calls:
-        keys = set()
-        for p in np.asarray(points, dtype=np.float64):
-            k = tree.coordToKey(p)
-            keys.add((k[0], k[1], k[2]))
-        for kx, ky, kz in sorted(keys):
-            key = octomap.OcTreeKey()
-            key[0], key[1], key[2] = kx, ky, kz
-            tree.updateNode(key, True)
-    return tree
 
 
 def test_insert_endpoints_hits_each_voxel_once_per_call(octomap: ModuleType) -> None:

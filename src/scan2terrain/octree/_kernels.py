@@ -16,6 +16,12 @@ blocks the scan touched; ``stamp`` holds, per block, the last scan that touched 
 Ray casting reproduces OctoMap's ``computeRayKeys`` and ``computeUpdate`` (OcTreeBaseImpl.hxx,
 OccupancyOcTreeBase.hxx) operation for operation, including which quantities are float32 and which
 double, so the voxels visited are the ones OctoMap visits.
+
+End points only (``insert_endpoints``, see "end points only" below) need no rays: points are
+sorted by block into partitions (``count_points``, ``place_points``), each partition's distinct
+voxels are grouped by block on a core of their own (``group_new_points``), and a block with few
+voxels keeps them in the sparse store, a voxel-level open-addressing hash, instead of a 2 KB
+block (see "the sparse store" below). A block is in the dense store or in the sparse one.
 """
 
 from __future__ import annotations
@@ -43,6 +49,8 @@ DONE, NEED_BLOCKS, NEED_TOUCHED, NEED_TABLE = 0, 1, 2, 3
 N_BLOCKS, N_TOUCHED, STAMP = 0, 1, 2
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
+# Helpers that take arrays and run once per point or voxel are inlined by numba (inline="always"):
+# a call passing arrays counts references to them, which costs several times the work.
 
 # Index of a word's lowest set bit: (bit * De Bruijn constant) >> 58 is unique per bit.
 _DEBRUIJN_MUL = np.uint64(0x03F79D71B4CB0A89)
@@ -605,96 +613,693 @@ def apply_blocks(values, bits, touched, n_touched, model, all_hits):
     return hits, misses
 
 
-@nb.njit(parallel=True, **_JIT)
-def point_blocks(points, resolution):
-    """Block id (-1 outside the key range) and voxel index within its block of every point,
-    computed on every core."""
-    res_factor = 1.0 / resolution
-    n = points.shape[0]
-    bk = np.empty(n, dtype=np.int64)
-    local = np.empty(n, dtype=np.int16)
-    for i in nb.prange(n):
-        kx = coord_to_key(np.float64(points[i, 0]), res_factor)
-        ky = coord_to_key(np.float64(points[i, 1]), res_factor)
-        kz = coord_to_key(np.float64(points[i, 2]), res_factor)
-        if kx < 0 or ky < 0 or kz < 0:
-            bk[i] = -1
-            local[i] = 0
-        else:
-            bk[i] = block_id(kx >> 3, ky >> 3, kz >> 3)
-            local[i] = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
-    return bk, local
+# --- the sparse store ----------------------------------------------------------------------------
+#
+# End points spread thinly (a few voxels per 8 x 8 x 8 block) would cost a 2 KB block per few
+# voxels. insert_endpoints keeps such blocks in a voxel-level open-addressing hash instead:
+#
+# - the voxel table ``vt``: int64 entries (hits << 48) | (kx << 32) | (ky << 16) | kz, 0 = empty.
+#   Only end points ever reach it, so a voxel's log-odds is a function of how many calls hit it:
+#   ``lut[hits]``, hits saturating where the value stops changing (clamp_max);
+# - the block table ``st``: int64 entries (voxels << 40) | block id, 0 = empty: how many voxels of
+#   each such block the voxel table holds (known at once when the block turns dense).
+#
+# Both have a power-of-two capacity split into NREG regions of equal size; a block's region is the
+# top bits of _fib(block id), and its voxels' entries and its count live in that region of each
+# table (linear probing wraps within the region). ``sparse_counts[r]`` = (voxels, blocks) in
+# region r. A block with DENSE_MIN voxels or more moves to the dense store (adopt_sparse).
+#
+# insert_endpoints sorts its points into NPART partitions (the top PART_BITS of the region: few
+# enough write streams for one scattering pass), and the kernels take a partition per core:
+# no two threads write one region, the layout does not depend on the number of threads, and the
+# voxels of a partition are handled region by region, each region (512 KB of a 128 MB table) in
+# cache.
 
-
-@nb.njit(parallel=True, **_JIT)
-def find_point_slots(bk, table_keys, table_slots):
-    """End points only, first pass, on every core (the table is only read): the slot of each
-    point's block, -1 if the block is not allocated yet, -2 for a point outside the key range.
-    The hash probe is written out: a call per point costs more than the probe."""
-    n = bk.shape[0]
-    slots = np.empty(n, dtype=np.int32)
-    mask = np.int64(table_keys.shape[0] - 1)
-    chunk = 4096
-    for c in nb.prange((n + chunk - 1) // chunk):
-        ck, cs = np.int64(-3), np.int32(-1)
-        for i in range(c * chunk, min(n, (c + 1) * chunk)):
-            k = bk[i]
-            if k < 0:
-                slots[i] = -2
-                continue
-            if k != ck:
-                ck = k
-                h = _hash(k, mask)
-                cs = np.int32(-1)
-                while True:
-                    tk = table_keys[h]
-                    if tk == k:
-                        cs = table_slots[h]
-                        break
-                    if tk == EMPTY:
-                        break
-                    h = (h + 1) & mask
-            slots[i] = cs
-    return slots
+NREG_BITS = 8
+NREG = 1 << NREG_BITS
+PART_BITS = 6
+NPART = 1 << PART_BITS
+HITS_SHIFT = 48
+KEY_MASK = np.int64((1 << 48) - 1)
+COUNT_SHIFT = 40
+BLOCK_MASK = np.int64((1 << 39) - 1)
+# Flags on the first voxel key of a block's run in group_new_points' output: the block goes to
+# the dense store (the sign bit); the sparse store holds voxels of it to hand over; its hits are
+# already in the sparse store (a block promoted after its hits: no bits to set).
+DENSE_RUN = np.int64(-(1 << 63))
+ADOPT_RUN = np.int64(1 << 62)
+NO_BITS = np.int64(1 << 61)
+# A block left for upsert_sparse with more than 9 voxels is written as a record, RECORD | its
+# block id and then its 8 mask words, instead of its voxel keys.
+RECORD = np.int64(1 << 60)
+# count_points' classes of points that are not inserted (-1 - their column of its counts).
+OUTSIDE = -(NPART + 2)
+NONFINITE = -(NPART + 3)
+#: Largest share of a region of the sparse store's tables in use (linear probing stays short).
+SPARSE_LOAD = 0.7
+#: Points per sub-bucket that group_new_points aims at: its hash and masks then fit in cache.
+SUB_POINTS = 4096
+#: Points per chunk of the partition histogram (fixed, so the partition is the same on any core
+#: count).
+CHUNK = 1 << 16
 
 
 @nb.njit(**_JIT)
-def settle_points(
-    bk, slots, start, bits, block_xyz, stamp, table_keys, table_slots, counts, touched, stats
-):
-    """End points only, second pass (serial): allocate the blocks :func:`find_point_slots` did
-    not find, fill in their slots, and record every block as touched by this call; resumable.
-    stats += [points inserted, 0, points outside the key range]."""
-    scan = counts[STAMP]
-    ck, cs = np.int64(-3), np.int64(-1)
-    n = bk.shape[0]
-    for i in range(start, n):
-        s = slots[i]
-        if s == -2:
-            stats[2] += 1
-            continue
-        k = bk[i]
-        if k != ck:
-            if s < 0:  # perhaps allocated by an earlier point of this pass: probe, inline
-                mask = np.int64(table_keys.shape[0] - 1)
+def _fib(x):
+    """Fibonacci hashing (Knuth): x times 2**64 / golden ratio; its top bits are well spread,
+    also for keys on a lattice, and it costs one multiplication (it runs for every point)."""
+    return np.uint64(x) * np.uint64(0x9E3779B97F4A7C15)
+
+
+@nb.njit(**_JIT)
+def _region(bk):
+    """Region of block ``bk``: the top NREG_BITS of _fib(bk)."""
+    return np.int64(_fib(bk) >> np.uint64(64 - NREG_BITS))
+
+
+@nb.njit(**_JIT)
+def _home(k, skip, mask):
+    """Slot of ``k`` within a region of ``mask + 1`` slots: the bits of _fib(k) below its top
+    ``skip`` (block ids skip the bits that chose their region)."""
+    return np.int64(_fib(k) >> np.uint64(40 - skip)) & mask
+
+
+@nb.njit(**_JIT)
+def voxel_key(kx, ky, kz):
+    return (np.int64(kx) << 32) | (np.int64(ky) << 16) | np.int64(kz)
+
+
+@nb.njit(**_JIT)
+def key_block(key):
+    """Block id of a voxel key (flags masked off)."""
+    return block_id((key >> 35) & 8191, (key >> 19) & 8191, (key >> 3) & 8191)
+
+
+@nb.njit(**_JIT)
+def key_local(key):
+    """Voxel index of a voxel key within its block."""
+    return ((key >> 32) & 7) | (((key >> 16) & 7) << 3) | ((key & 7) << 6)
+
+
+@nb.njit(**_JIT)
+def _block_voxel_key(bk, local):
+    kx = ((bk >> 26) << 3) | (local & 7)
+    ky = (((bk >> 13) & 8191) << 3) | ((local >> 3) & 7)
+    kz = ((bk & 8191) << 3) | (local >> 6)
+    return voxel_key(kx, ky, kz)
+
+
+@nb.njit(inline="always", **_JIT)
+def _probe(table, k, kmask, r):
+    """Index of the entry of region ``r`` whose bits ``kmask`` are ``k``, or of the empty slot
+    where it would go (voxel keys: ``kmask`` KEY_MASK, block ids: BLOCK_MASK)."""
+    size = table.shape[0] >> NREG_BITS
+    mask = size - 1
+    base = r * size
+    i = _home(k, 0 if kmask == KEY_MASK else NREG_BITS, mask)
+    while True:
+        e = table[base + i]
+        if e == 0 or (e & kmask) == k:
+            return base + i
+        i = (i + 1) & mask
+
+
+@nb.njit(inline="always", **_JIT)
+def _remove(table, at, kmask):
+    """Empty entry ``at``; entries after it in its probe run move back (no tombstones)."""
+    size = table.shape[0] >> NREG_BITS
+    mask = size - 1
+    base = at - (at & mask)
+    skip = 0 if kmask == KEY_MASK else NREG_BITS
+    i = at & mask
+    j = i
+    while True:
+        j = (j + 1) & mask
+        e = table[base + j]
+        if e == 0:
+            break
+        h = _home(e & kmask, skip, mask)
+        # e stays unless the hole i lies on its probe path from h to j (cyclically)
+        if (i <= j and (h <= i or h > j)) or (i > j and h <= i and h > j):
+            table[base + i] = e
+            i = j
+    table[base + i] = 0
+
+
+@nb.njit(**_JIT)
+def _popcount(x):
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@nb.njit(parallel=True, **_JIT)
+def sparse_rehash(table, kmask, out):
+    """Copy a sparse-store table into ``out`` (zeros, a larger power of two); entries keep their
+    region, so the regions are rehashed on every core."""
+    size = table.shape[0] >> NREG_BITS
+    for r in nb.prange(NREG):
+        for i in range(r * size, (r + 1) * size):
+            e = table[i]
+            if e != 0:
+                out[_probe(out, e & kmask, kmask, r)] = e
+
+
+@nb.njit(**_JIT)
+def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
+    """Move the sparse store's voxels of block (bx, by, bz) into dense block ``cs`` (values
+    already NaN), if it has any."""
+    bk = block_id(bx, by, bz)
+    r = _region(bk)
+    at = _probe(st, bk, BLOCK_MASK, r)
+    if st[at] == 0:
+        return
+    left = st[at] >> COUNT_SHIFT
+    _remove(st, at, BLOCK_MASK)
+    sparse_counts[r, 0] -= left
+    sparse_counts[r, 1] -= 1
+    for local in range(512):
+        if left == 0:
+            break
+        at = _probe(vt, _block_voxel_key(bk, local), KEY_MASK, r)
+        e = vt[at]
+        if e != 0:
+            values[cs, local] = lut[e >> HITS_SHIFT]
+            _remove(vt, at, KEY_MASK)
+            left -= 1
+
+
+@nb.njit(**_JIT)
+def adopt_sparse(slots, values, block_xyz, vt, st, sparse_counts, lut):
+    """Dense blocks ``slots`` (values already NaN) take over their voxels from the sparse store."""
+    for j in range(slots.shape[0]):
+        cs = slots[j]
+        bx, by, bz = block_xyz[cs, 0], block_xyz[cs, 1], block_xyz[cs, 2]
+        _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut)
+
+
+@nb.njit(**_JIT)
+def sparse_voxels(vt, lut, n):
+    """The sparse store's ``n`` voxels: keys uint16 (n, 3) and log-odds float32 (n,), in
+    table order."""
+    keys = np.empty((n, 3), dtype=np.uint16)
+    lo = np.empty(n, dtype=np.float32)
+    j = 0
+    for i in range(vt.shape[0]):
+        e = vt[i]
+        if e != 0:
+            keys[j, 0] = (e >> 32) & 0xFFFF
+            keys[j, 1] = (e >> 16) & 0xFFFF
+            keys[j, 2] = e & 0xFFFF
+            lo[j] = lut[e >> HITS_SHIFT]
+            j += 1
+    return keys, lo
+
+
+# --- end points only -----------------------------------------------------------------------------
+
+
+@nb.njit(parallel=True, **_JIT)
+def count_points(points, resolution, table_keys, table_slots, cls):
+    """End points only, first pass, on every core, CHUNK points at a time (the table is only
+    read). Each point's class into ``cls`` (int32): its block's slot in the dense store (>= 0),
+    or -1 - its partition (block not in the dense store), or OUTSIDE (outside the key range) or
+    NONFINITE; and per chunk how many points of each: columns 0..NPART-1 per partition, NPART
+    dense, NPART + 1 outside, NPART + 2 non-finite (int64 (chunks, NPART + 3)). With an empty
+    ``cls`` (a tree without dense blocks) the classes are only counted and no block is looked up.
+    Written out, with no call per point (numba would count references to the arrays at each
+    one); a run of points in one block probes the table once."""
+    keep = cls.shape[0] > 0
+    res_factor = 1.0 / resolution
+    n = points.shape[0]
+    n_chunks = (n + CHUNK - 1) // CHUNK
+    hist = np.zeros((n_chunks, NPART + 3), dtype=np.int64)
+    mask = np.int64(table_keys.shape[0] - 1)
+    for c in nb.prange(n_chunks):
+        ck, cs, col = np.int64(-3), np.int64(-1), np.int64(0)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            x, y, z = points[i, 0], points[i, 1], points[i, 2]
+            kx = coord_to_key(np.float64(x), res_factor)
+            ky = coord_to_key(np.float64(y), res_factor)
+            kz = coord_to_key(np.float64(z), res_factor)
+            if kx < 0 or ky < 0 or kz < 0:
+                finite = math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+                col = NPART + 1 if finite else NPART + 2
+                hist[c, col] += 1
+                if keep:
+                    cls[i] = -col - 1  # OUTSIDE or NONFINITE
+                ck = -3
+                continue
+            k = block_id(kx >> 3, ky >> 3, kz >> 3)
+            if k != ck:
+                ck = k
                 h = _hash(k, mask)
-                while True:
+                cs = -1 - (_region(k) >> (NREG_BITS - PART_BITS))
+                col = -1 - cs
+                while keep:
                     tk = table_keys[h]
                     if tk == k:
-                        s = table_slots[h]
+                        cs = np.int64(table_slots[h])
+                        col = np.int64(NPART)
                         break
                     if tk == EMPTY:
                         break
                     h = (h + 1) & mask
-            if s < 0 or stamp[s] != scan:
+            if keep:
+                cls[i] = cs
+            hist[c, col] += 1
+    return hist
+
+
+@nb.njit(parallel=True, **_JIT)
+def place_points(points, resolution, cls, offsets, new, dense):
+    """End points only, second pass, on every core: the voxel key of each point outside the
+    dense store into ``new``, partition by partition (point order within one), and
+    ``(slot << 9) | local`` of each point in the dense store into ``dense`` (point order).
+    ``cls``: from :func:`count_points` (empty: no dense blocks); ``offsets[c]``: where chunk c's
+    points go, per partition (columns 0..NPART-1) in ``new`` and (column NPART) in ``dense``;
+    advanced."""
+    res_factor = 1.0 / resolution
+    n = points.shape[0]
+    keep = cls.shape[0] > 0
+    for c in nb.prange(offsets.shape[0]):
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if keep:
+                cs = np.int64(cls[i])
+                if cs <= OUTSIDE:
+                    continue
+            kx = coord_to_key(np.float64(points[i, 0]), res_factor)
+            ky = coord_to_key(np.float64(points[i, 1]), res_factor)
+            kz = coord_to_key(np.float64(points[i, 2]), res_factor)
+            if not keep:
+                if kx < 0 or ky < 0 or kz < 0:
+                    continue
+                cs = -1 - (_region(block_id(kx >> 3, ky >> 3, kz >> 3)) >> (NREG_BITS - PART_BITS))
+            if cs < 0:
+                col = -1 - cs
+                at = offsets[c, col]
+                offsets[c, col] = at + 1
+                new[at] = voxel_key(kx, ky, kz)
+            else:
+                at = offsets[c, NPART]
+                offsets[c, NPART] = at + 1
+                dense[at] = (cs << 9) | (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
+
+
+@nb.njit(**_JIT)
+def touch_points(dense, start, stamp, counts, touched):
+    """End points only (serial): record every dense block the points hit (``dense``, from
+    :func:`place_points`) as touched by this call. Resumable (it stops for room in
+    ``touched``)."""
+    scan = counts[STAMP]
+    last = np.int64(-3)
+    n = dense.shape[0]
+    for i in range(start, n):
+        s = dense[i] >> 9
+        if s == last:
+            continue
+        last = s
+        if stamp[s] != scan:
+            if counts[N_TOUCHED] + 1 > touched.shape[0]:
+                return i, NEED_TOUCHED
+            stamp[s] = scan
+            touched[counts[N_TOUCHED]] = s
+            counts[N_TOUCHED] += 1
+    return n, DONE
+
+
+@nb.njit(parallel=True, **_JIT)
+def mark_point_bits(dense, planes, bits):
+    """End points only, on every core: thread t sets the bits of its points in the dense store
+    (``dense``, from :func:`place_points`) in its own words 8 + 8t .. 15 + 8t (chunks t, t + T,
+    ...), so no bit is lost to a race; :func:`apply_blocks` with ``all_hits`` reads every plane
+    as hits."""
+    n = dense.shape[0]
+    chunk = 4096
+    n_chunks = (n + chunk - 1) // chunk
+    for t in nb.prange(planes):
+        plane = 8 + 8 * t
+        for c in range(t, n_chunks, planes):
+            for i in range(c * chunk, min(n, (c + 1) * chunk)):
+                cs = dense[i] >> 9
+                loc = dense[i] & 511
+                bits[cs, plane + (loc >> 6)] |= np.uint64(1) << np.uint64(loc & 63)
+
+
+@nb.njit(**_JIT)
+def _group_blocks(keys, start, b, tkeys, tidx, tpos, tbk, masks, nt):
+    """Add the blocks of voxel keys ``keys[start:b]`` in order of first appearance (``tbk``, ``nt``
+    so far) and each one's mask of voxels hit, through the hash ``tkeys`` (block id, -1 empty;
+    homes from bits of _fib below those that chose the partition and sub-bucket) -> ``tidx``;
+    ``tpos``: each block's slot, to empty the hash afterwards. Returns (index reached, blocks):
+    it stops before a block that would fill the hash over half (grow the arrays and call again;
+    they are not grown here, as numba would count references to arrays reassigned in a loop at
+    every point)."""
+    cap = tkeys.shape[0]
+    last_bk, t = np.int64(-1), np.int64(-1)
+    for i in range(start, b):
+        key = keys[i]
+        bk = key_block(key)
+        if bk != last_bk:
+            h = _home(bk, 16, cap - 1)
+            while tkeys[h] != -1 and tkeys[h] != bk:
+                h = (h + 1) & (cap - 1)
+            if tkeys[h] == -1:
+                if 2 * (nt + 1) > cap:
+                    return i, nt
+                tkeys[h] = bk
+                tidx[h] = nt
+                tpos[nt] = h
+                tbk[nt] = bk
+                masks[nt, :] = 0
+                nt += 1
+            last_bk, t = bk, tidx[h]
+        local = key_local(key)
+        masks[t, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+    return b, nt
+
+
+@nb.njit(inline="always", **_JIT)
+def _hit_voxel(vt, key, r, max_hits):
+    """One hit for voxel ``key`` (region ``r``) in the voxel table; 1 if it is new there."""
+    at = _probe(vt, key, KEY_MASK, r)
+    e = vt[at]
+    if e == 0:
+        vt[at] = (np.int64(1) << HITS_SHIFT) | key
+        return 1
+    if (e >> HITS_SHIFT) < max_hits:
+        vt[at] = e + (np.int64(1) << HITS_SHIFT)
+    return 0
+
+
+@nb.njit(inline="always", **_JIT)
+def _add_sparse(st, bk, r, held, new, sparse_counts):
+    """Count ``new`` voxels of block ``bk`` (which had ``held``) in the block table."""
+    if new == 0:
+        return
+    at = _probe(st, bk, BLOCK_MASK, r)
+    if held == 0:
+        st[at] = bk
+        sparse_counts[r, 1] += 1
+    st[at] += new << COUNT_SHIFT
+    sparse_counts[r, 0] += new
+
+
+@nb.njit(**_JIT)
+def _place_blocks(
+    keys, w, dbuf, dw, tbk, masks, nt, vt, st, sparse_counts, dense_min, max_hits, out
+):
+    """The ``nt`` blocks of :func:`_group_blocks`, region by region (in order of first appearance
+    within one); see :func:`group_new_points`. Writes the runs going dense from ``keys[w]`` on
+    and the blocks left for want of room from ``dbuf[dw]`` on; returns the indices after
+    them."""
+    sub = 1 << (NREG_BITS - PART_BITS)
+    first = np.zeros(sub + 1, dtype=np.int64)  # a counting sort of the blocks by region
+    region = np.empty(nt, dtype=np.int64)
+    for u in range(nt):
+        region[u] = _region(tbk[u])
+        first[(region[u] & (sub - 1)) + 1] += 1
+    for j in range(sub):
+        first[j + 1] += first[j]
+    order = np.empty(nt, dtype=np.int64)
+    for u in range(nt):
+        j = region[u] & (sub - 1)
+        order[first[j]] = u
+        first[j] += 1
+    room_v = np.int64(SPARSE_LOAD * (vt.shape[0] >> NREG_BITS))
+    room_s = np.int64(SPARSE_LOAD * (st.shape[0] >> NREG_BITS))
+    for v in range(nt):
+        u = order[v]
+        bk, r = tbk[u], region[u]
+        d = np.int64(0)
+        for word in range(8):
+            d += _popcount(masks[u, word])
+        held = np.int64(0)
+        at = _probe(st, bk, BLOCK_MASK, r)
+        if st[at] != 0:
+            held = st[at] >> COUNT_SHIFT
+        flags = np.int64(0)
+        if d >= dense_min:
+            flags = DENSE_RUN | (ADOPT_RUN if held > 0 else np.int64(0))
+            out[r, 2] += 1
+        elif sparse_counts[r, 0] + d <= room_v and sparse_counts[r, 1] + 1 <= room_s:
+            new = np.int64(0)
+            for word in range(8):
+                rest = masks[u, word]
+                while rest:
+                    bit = rest & (~rest + np.uint64(1))
+                    rest ^= bit
+                    local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+                    new += _hit_voxel(vt, _block_voxel_key(bk, local), r, max_hits)
+            _add_sparse(st, bk, r, held, new, sparse_counts)
+            out[r, 3] += d
+            if held + new >= dense_min:  # promoted: one key stands for the block
+                keys[w] = _block_voxel_key(bk, 0) | DENSE_RUN | ADOPT_RUN | NO_BITS
+                w += 1
+                out[r, 2] += 1
+            continue
+        else:  # no room in the tables: left to upsert_sparse once they have grown
+            out[r, 0] += d
+            out[r, 1] += 1
+            if d > 9:  # then the block had more than 9 points: there is room for a record
+                dbuf[dw] = RECORD | bk
+                for word in range(8):
+                    dbuf[dw + 1 + word] = np.int64(masks[u, word])
+                dw += 9
+            else:
+                dw = _write_block(dbuf, dw, bk, masks, u, np.int64(0))
+            continue
+        w = _write_block(keys, w, bk, masks, u, flags)
+    return w, dw
+
+
+@nb.njit(inline="always", **_JIT)
+def _write_block(keys, w, bk, masks, u, flags):
+    """The voxel keys of block ``bk`` (``masks[u]``) from ``keys[w]`` on, by index in the block,
+    the first one with ``flags``; returns the index after the last."""
+    for word in range(8):
+        rest = masks[u, word]
+        while rest:
+            bit = rest & (~rest + np.uint64(1))
+            rest ^= bit
+            local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+            keys[w] = _block_voxel_key(bk, local) | flags
+            flags = 0
+            w += 1
+    return w
+
+
+@nb.njit(inline="always", **_JIT)
+def _item(keys, i, end):
+    """The block of the item at ``keys[i]`` of group_new_points' output and the index after
+    the item: a record (RECORD | block id, then 8 mask words) or a run of a block's voxel keys
+    (flags on the first only)."""
+    first = keys[i]
+    if first & RECORD:
+        return first & BLOCK_MASK, i + 9
+    bk = key_block(first)
+    j = i + 1
+    while j < end and keys[j] >> HITS_SHIFT == 0 and key_block(keys[j]) == bk:
+        j += 1
+    return bk, j
+
+
+@nb.njit(parallel=True, **_JIT)
+def group_new_points(keys, seg, vt, st, sparse_counts, dense_min, max_hits, threads):
+    """Partition by partition, on every core: each distinct voxel of the points' voxel keys
+    (partition p's in ``keys[seg[p]:seg[p + 1]]``) once, block by block (blocks by region, then
+    in order of first appearance). A block with ``dense_min`` voxels in this call goes to the
+    dense store: its voxel keys are written over the points, the first one flagged DENSE_RUN (and
+    ADOPT_RUN if the sparse store holds voxels of it). Each voxel of any other block takes a hit
+    in the sparse store, if its region has room; a block reaching ``dense_min`` voxels there is
+    promoted (one key flagged DENSE_RUN, ADOPT_RUN and NO_BITS). Blocks in a region without room
+    are written unflagged after those (as voxel keys or a RECORD), for :func:`upsert_sparse`.
+    Returns, per partition, the
+    keys written (NPART, 2: the runs going dense, all) and per region (NREG, 4): voxels and
+    blocks left for upsert_sparse (at most new to the tables), runs going dense, voxels hit.
+    Thread t of ``threads`` takes partitions t, t + threads, ... with its own scratch arrays."""
+    written = np.zeros((NPART, 2), dtype=np.int64)
+    out = np.zeros((NREG, 4), dtype=np.int64)
+    for t in nb.prange(threads):
+        _group_partitions(
+            t, threads, keys, seg, vt, st, sparse_counts, dense_min, max_hits, written, out
+        )
+    return written, out
+
+
+@nb.njit(**_JIT)
+def _sub_bucket(key, bits):
+    """Sub-bucket of a voxel key within its partition: the ``bits`` of _fib(its block) below
+    the partition's (so sub-buckets nest in regions)."""
+    return np.int64((_fib(key_block(key)) << np.uint64(PART_BITS)) >> np.uint64(64 - bits))
+
+
+@nb.njit(**_JIT)
+def _group_partitions(
+    t, threads, keys, seg, vt, st, sparse_counts, dense_min, max_hits, written, out
+):
+    """Thread t's part of :func:`group_new_points`: partitions t, t + threads, ... A partition
+    with more than SUB_POINTS blocks is split into sub-buckets of about SUB_POINTS points (by
+    block), so the grouping hash and masks stay in cache however few points each block has. A
+    function of its own: numba's parallel loops mishandle arrays rebound in their body, as
+    these grow."""
+    cap = 2 * SUB_POINTS
+    tkeys = np.full(cap, -1, dtype=np.int64)
+    tidx = np.empty(cap, dtype=np.int64)
+    tpos = np.empty(cap // 2, dtype=np.int64)
+    tbk = np.empty(cap // 2, dtype=np.int64)
+    masks = np.empty((cap // 2, 8), dtype=np.uint64)
+    sbuf = np.empty(0, dtype=np.int64)  # the partition's keys by sub-bucket
+    dbuf = np.empty(0, dtype=np.int64)  # blocks left for want of room
+    for p in range(t, NPART, threads):
+        a, b = seg[p], seg[p + 1]
+        n = b - a
+        if dbuf.shape[0] < n:
+            sbuf = np.empty(n, dtype=np.int64)
+            dbuf = np.empty(n, dtype=np.int64)
+        # Written over the partition's keys (read by then), never more of them than points.
+        w, dw = a, 0
+        i, nt = _group_blocks(keys, a, b, tkeys, tidx, tpos, tbk, masks, 0)
+        if i == b:  # the usual case: the partition's blocks fit the hash
+            w, dw = _place_blocks(
+                keys, w, dbuf, dw, tbk, masks, nt, vt, st, sparse_counts, dense_min, max_hits, out
+            )
+        for u in range(nt):
+            tkeys[tpos[u]] = -1
+        if i < b:  # many blocks: again, sub-bucket by sub-bucket (a counting sort into sbuf)
+            bits = 1
+            while (n >> bits) > SUB_POINTS and bits < 12:
+                bits += 1
+            starts = np.zeros((1 << bits) + 1, dtype=np.int64)
+            for i in range(a, b):
+                starts[_sub_bucket(keys[i], bits) + 1] += 1
+            for j in range(1 << bits):
+                starts[j + 1] += starts[j]
+            at = starts[:-1].copy()
+            for i in range(a, b):
+                j = _sub_bucket(keys[i], bits)
+                sbuf[at[j]] = keys[i]
+                at[j] += 1
+            for j in range(1 << bits):
+                i, nt = starts[j], 0
+                while True:
+                    i, nt = _group_blocks(sbuf, i, starts[j + 1], tkeys, tidx, tpos, tbk, masks, nt)
+                    if i == starts[j + 1]:
+                        break
+                    cap *= 4  # still over half full (a sub-bucket of few, busy blocks): grow
+                    tkeys = np.full(cap, -1, dtype=np.int64)
+                    tidx = np.empty(cap, dtype=np.int64)
+                    tpos = np.empty(cap // 2, dtype=np.int64)
+                    grown_bk = np.empty(cap // 2, dtype=np.int64)
+                    grown_bk[:nt] = tbk[:nt]
+                    tbk = grown_bk
+                    grown = np.empty((cap // 2, 8), dtype=np.uint64)
+                    grown[:nt] = masks[:nt]
+                    masks = grown
+                    for u in range(nt):
+                        h = _home(tbk[u], 16, cap - 1)
+                        while tkeys[h] != -1:
+                            h = (h + 1) & (cap - 1)
+                        tkeys[h] = tbk[u]
+                        tidx[h] = u
+                        tpos[u] = h
+                w, dw = _place_blocks(
+                    keys,
+                    w,
+                    dbuf,
+                    dw,
+                    tbk,
+                    masks,
+                    nt,
+                    vt,
+                    st,
+                    sparse_counts,
+                    dense_min,
+                    max_hits,
+                    out,
+                )
+                for u in range(nt):
+                    tkeys[tpos[u]] = -1
+        keys[w : w + dw] = dbuf[:dw]
+        written[p, 0] = w - a
+        written[p, 1] = w + dw - a
+
+
+@nb.njit(parallel=True, **_JIT)
+def upsert_sparse(keys, seg, written, vt, st, sparse_counts, dense_min, max_hits):
+    """Partition by partition, on every core: one hit in the sparse store for each voxel of the
+    blocks :func:`group_new_points` left for want of room (the tables must have room now); a
+    block reaching ``dense_min`` voxels is promoted (its first word flagged DENSE_RUN, ADOPT_RUN
+    and NO_BITS). Returns, per partition, the voxels hit and the blocks promoted (NPART, 2)."""
+    hits = np.zeros((NPART, 2), dtype=np.int64)
+    for p in nb.prange(NPART):
+        i = seg[p] + written[p, 0]
+        end = seg[p] + written[p, 1]
+        while i < end:
+            bk, j = _item(keys, i, end)
+            r = _region(bk)
+            held = np.int64(0)
+            at = _probe(st, bk, BLOCK_MASK, r)
+            if st[at] != 0:
+                held = st[at] >> COUNT_SHIFT
+            new = np.int64(0)
+            if keys[i] & RECORD:
+                for word in range(8):
+                    rest = np.uint64(keys[i + 1 + word])
+                    while rest:
+                        bit = rest & (~rest + np.uint64(1))
+                        rest ^= bit
+                        local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+                        new += _hit_voxel(vt, _block_voxel_key(bk, local), r, max_hits)
+                        hits[p, 0] += 1
+            else:
+                for m in range(i, j):
+                    new += _hit_voxel(vt, keys[m], r, max_hits)
+                hits[p, 0] += j - i
+            _add_sparse(st, bk, r, held, new, sparse_counts)
+            if held + new >= dense_min:
+                keys[i] |= DENSE_RUN | ADOPT_RUN | NO_BITS
+                hits[p, 1] += 1
+            i = j
+    return hits
+
+
+@nb.njit(**_JIT)
+def alloc_dense_runs(
+    keys,
+    seg,
+    ends,
+    start,
+    adopt,
+    n_adopt,
+    bits,
+    block_xyz,
+    stamp,
+    table_keys,
+    table_slots,
+    counts,
+    touched,
+):
+    """Serial: a dense block for every DENSE_RUN of :func:`group_new_points` among partition p's
+    first ``ends[p]`` keys (allocated, touched by this call), its voxels' hit bits set unless
+    NO_BITS; those flagged ADOPT_RUN are listed in ``adopt`` (``n_adopt[0]`` of them) for
+    :func:`adopt_sparse`. Resumable: returns (next key, status)."""
+    for p in range(NPART):
+        i = max(seg[p], start)
+        end = seg[p] + ends[p]
+        while i < end:
+            first = keys[i]
+            bk, j = _item(keys, i, end)
+            if first < 0:
                 status = _room(1, counts, block_xyz, touched, table_keys)
                 if status != DONE:
                     return i, status
-                s = _slot(
-                    k,
-                    k >> 26,
-                    (k >> 13) & 8191,
-                    k & 8191,
+                cs = _slot(
+                    bk,
+                    bk >> 26,
+                    (bk >> 13) & 8191,
+                    bk & 8191,
                     block_xyz,
                     stamp,
                     table_keys,
@@ -702,48 +1307,44 @@ def settle_points(
                     counts,
                     touched,
                 )
-            ck, cs = k, s
-        slots[i] = cs
-        stats[0] += 1
-    return n, DONE
-
-
-@nb.njit(parallel=True, **_JIT)
-def mark_point_bits(slots, local, planes, bits):
-    """End points only, third pass, on every core: thread t sets each of its points' bits in
-    its own words 8 + 8t .. 15 + 8t (chunks t, t + T, ...), so no bit is lost to a race;
-    :func:`apply_blocks` with ``all_hits`` reads every plane as hits."""
-    n = slots.shape[0]
-    chunk = 4096
-    n_chunks = (n + chunk - 1) // chunk
-    for t in nb.prange(planes):
-        plane = 8 + 8 * t
-        for c in range(t, n_chunks, planes):
-            for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                cs = slots[i]
-                if cs >= 0:
-                    loc = local[i]
-                    bits[cs, plane + (loc >> 6)] |= np.uint64(1) << np.uint64(loc & 63)
+                if not first & NO_BITS:
+                    for m in range(i, j):
+                        local = key_local(keys[m])
+                        bits[cs, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+                if first & ADOPT_RUN:
+                    adopt[n_adopt[0]] = cs
+                    n_adopt[0] += 1
+            i = j
+    return keys.shape[0], DONE
 
 
 @nb.njit(**_JIT)
-def lookup(keys, values, table_keys, table_slots):
-    """Log-odds of voxel keys (int64 (N, 3)); NaN where unknown."""
+def lookup(keys, values, table_keys, table_slots, vt, lut):
+    """Log-odds of voxel keys (int64 (N, 3)), from the dense store or else the sparse store's
+    voxel table ``vt``; NaN where unknown."""
     n = keys.shape[0]
     out = np.full(n, np.nan, dtype=np.float32)
     for i in range(n):
         kx, ky, kz = keys[i, 0], keys[i, 1], keys[i, 2]
         if kx < 0 or ky < 0 or kz < 0 or kx >= KEY_LIMIT or ky >= KEY_LIMIT or kz >= KEY_LIMIT:
             continue
-        slot = table_find(table_keys, table_slots, block_id(kx >> 3, ky >> 3, kz >> 3))
+        bk = block_id(kx >> 3, ky >> 3, kz >> 3)
+        slot = table_find(table_keys, table_slots, bk)
         if slot >= 0:
             out[i] = values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)]
+        else:
+            e = vt[_probe(vt, voxel_key(kx, ky, kz), KEY_MASK, _region(bk))]
+            if e != 0:
+                out[i] = lut[e >> HITS_SHIFT]
     return out
 
 
 @nb.njit(**_JIT)
-def set_values(keys, logodds, values, block_xyz, table_keys, table_slots, counts):
-    """Write log-odds at voxel keys (int64 (N, 3)), creating blocks; arrays must have room."""
+def set_values(
+    keys, logodds, values, block_xyz, table_keys, table_slots, counts, vt, st, sparse_counts, lut
+):
+    """Write log-odds at voxel keys (int64 (N, 3)), creating blocks (a new block first takes over
+    the sparse store's voxels of it); arrays must have room."""
     for i in range(keys.shape[0]):
         kx, ky, kz = keys[i, 0], keys[i, 1], keys[i, 2]
         bx, by, bz = kx >> 3, ky >> 3, kz >> 3
@@ -757,6 +1358,7 @@ def set_values(keys, logodds, values, block_xyz, table_keys, table_slots, counts
             block_xyz[slot, 2] = bz
             table_insert(table_keys, table_slots, k, slot)
             values[slot, :] = np.nan
+            _adopt_block(slot, bx, by, bz, values, vt, st, sparse_counts, lut)
         values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)] = logodds[i]
 
 
@@ -768,9 +1370,12 @@ class Kernels(NamedTuple):
     flag_blocks: Any
     cast_parallel: Any
     apply_blocks: Any
-    point_blocks: Any
-    find_point_slots: Any
+    count_points: Any
+    place_points: Any
     mark_point_bits: Any
+    group_new_points: Any
+    upsert_sparse: Any
+    sparse_rehash: Any
 
 
 def _serial(dispatcher: Any) -> Any:
@@ -784,6 +1389,14 @@ def _serial(dispatcher: Any) -> Any:
 
 
 PARALLEL = Kernels(
-    flag_blocks, cast_parallel, apply_blocks, point_blocks, find_point_slots, mark_point_bits
+    flag_blocks,
+    cast_parallel,
+    apply_blocks,
+    count_points,
+    place_points,
+    mark_point_bits,
+    group_new_points,
+    upsert_sparse,
+    sparse_rehash,
 )
 SERIAL = Kernels(*(_serial(k) for k in PARALLEL))

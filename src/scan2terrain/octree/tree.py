@@ -2,9 +2,11 @@
 
 Voxels are keyed like OctoMap's depth-16 leaves (16 bits per axis, ``key = floor(x / res) + 32768``)
 and stored in dense 8 x 8 x 8 blocks behind a hash of block coordinates: a leaf is a float32
-log-odds, NaN when unknown. Inner nodes are not stored; a coarser depth is computed on demand as the
-maximum of its known voxels, which is what OctoMap's inner nodes hold. OctoMap's pruning is
-lossless (it merges 8 equal children), so the voxel values here equal OctoMap's leaf values.
+log-odds, NaN when unknown. End points only (``insert_endpoints``) keep blocks with few voxels in
+a sparse store instead, a voxel-level hash (see _kernels.py); every query reads both. Inner nodes
+are not stored; a coarser depth is computed on demand as the maximum of its known voxels, which is
+what OctoMap's inner nodes hold. OctoMap's pruning is lossless (it merges 8 equal children), so
+the voxel values here equal OctoMap's leaf values.
 """
 
 from __future__ import annotations
@@ -27,6 +29,11 @@ TREE_DEPTH = 16
 PARALLEL_MIN_RAYS = 4096
 #: Largest per-scan dense block index (int32 entries): 64 MB.
 MAX_DENSE = 1 << 24
+#: End points only: a block with this many known voxels or more is stored densely; below, its
+#: voxels stay in the sparse store. A dense block costs ~2.3 KB (values, bits, index), a sparse
+#: voxel 11-23 bytes (8 bytes at a load of 0.35-0.7), so 64 voxels keep the sparse store well
+#: below the block's cost while most of a surface's blocks (and their fast path) stay dense.
+DENSE_MIN = 64
 #: Local voxel offsets inside a block, in the kernels' order: local = x | y << 3 | z << 6.
 _LOCAL = np.stack(
     [np.arange(512) & 7, (np.arange(512) >> 3) & 7, (np.arange(512) >> 6) & 7], axis=1
@@ -103,6 +110,29 @@ class VoxelOctree:
         self._table_slots = np.zeros(4096, dtype=np.int32)
         self._counts = np.zeros(3, dtype=np.int64)  # see _kernels.N_BLOCKS, N_TOUCHED, STAMP
         self._touched = np.zeros(1024, dtype=np.int64)
+        # The sparse store (end points only): voxel and block tables, (voxels, blocks) per region.
+        self._vt = np.zeros(16 * K.NREG, dtype=np.int64)
+        self._st = np.zeros(16 * K.NREG, dtype=np.int64)
+        self._sparse_counts = np.zeros((K.NREG, 2), dtype=np.int64)
+        self._lut, self._max_hits = self._hit_values()
+        # Without a saturating hit count that fits the voxel table (a model needing more than
+        # 255 hits to reach clamp_max), every block is dense.
+        self._dense_min = DENSE_MIN if self._max_hits > 0 else 0
+
+    def _hit_values(self) -> tuple[NDArray[np.float32], int]:
+        """Log-odds of a voxel hit by 0..255 end-point calls from unknown (as apply_blocks
+        computes them, float32 and clamped), and the count from which it no longer changes
+        (0 if above 255)."""
+        lut = np.full(256, np.nan, dtype=np.float32)
+        v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
+        for hits in range(1, 256):  # a table of 255 entries, not a loop over points
+            v = np.float32(v + self._hit)
+            v = self._cmin if v < self._cmin else (self._cmax if v > self._cmax else v)
+            if hits > 1 and v == lut[hits - 1]:
+                lut[hits:] = v
+                return lut, hits - 1
+            lut[hits] = v
+        return lut, 0
 
     # --- insertion ------------------------------------------------------------------------
 
@@ -148,6 +178,7 @@ class VoxelOctree:
             lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
         )
         self._fresh_blocks(first_new)
+        self._adopt(np.arange(first_new, self.n_blocks))
         hits, misses = self._apply(k)
         return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
 
@@ -170,19 +201,95 @@ class VoxelOctree:
         return np.full(int(np.prod(ext)), -1, dtype=np.int32), box
 
     def insert_endpoints(self, points: NDArray[np.floating]) -> InsertStats:
-        """Insert registered points as hits only (no ray casting); each voxel once per call."""
-        pts, dropped = self._points(points)
-        stats = np.zeros(3, dtype=np.int64)
+        """Insert registered points as hits only (no ray casting); each voxel once per call.
+
+        Points in dense blocks set hit bits there; the rest are grouped by block (region by
+        region, every core): a block with DENSE_MIN voxels or more becomes dense, the others'
+        voxels take one hit each in the sparse store.
+        """
+        pts = self._points_any(points)
         self._next_scan()
-        first_new = self.n_blocks
         k = self._kernels(len(pts) // 16)  # a point is far less work than a ray
-        bk, local = k.point_blocks(pts, self.resolution)
-        slots = k.find_point_slots(bk, self._table_keys, self._table_slots)
-        self._until_done(lambda i: K.settle_points(bk, slots, i, *self._storage(), stats))
-        k.mark_point_bits(slots, local, self._planes(k), self._bits)
-        self._fresh_blocks(first_new)
+        # a tree without dense blocks: no classes to keep (place_points recomputes partitions)
+        cls = np.empty(len(pts) if self.n_blocks else 0, dtype=np.int32)
+        hist = k.count_points(pts, self.resolution, self._table_keys, self._table_slots, cls)
+        # Each chunk's points go after the earlier chunks' of the same partition (or of the
+        # dense store); partitions one after the other.
+        totals = hist.sum(axis=0)
+        starts = np.zeros(K.NPART + 1, dtype=np.int64)
+        np.cumsum(totals[: K.NPART], out=starts[1:])
+        offsets = np.cumsum(hist[:, : K.NPART + 1], axis=0) - hist[:, : K.NPART + 1]
+        offsets[:, : K.NPART] += starts[:-1]
+        new = np.empty(int(starts[-1]), dtype=np.int64)
+        dense = np.empty(int(totals[K.NPART]), dtype=np.int64)
+        k.place_points(pts, self.resolution, cls, offsets, new, dense)
+        del cls
+        if len(dense):
+            self._until_done(
+                lambda i: K.touch_points(dense, i, self._stamp, self._counts, self._touched)
+            )
+        sparse_hits = self._insert_new(k, new, starts) if len(new) else 0
+        if len(dense):
+            k.mark_point_bits(dense, self._planes(k), self._bits)
         hits, misses = self._apply(k, all_hits=True)
-        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), 0, hits, misses)
+        outside, dropped = int(totals[K.NPART + 1]), int(totals[K.NPART + 2])
+        return InsertStats(len(pts), dropped, outside, 0, hits + sparse_hits, misses)
+
+    def _insert_new(self, k: K.Kernels, new: NDArray[np.int64], seg: NDArray[np.int64]) -> int:
+        """End points in blocks the dense store lacks: voxel keys ``new``, partition p's in
+        ``new[seg[p]:seg[p + 1]]``. Each distinct voxel once: dense blocks allocated and marked,
+        the others' voxels hit in the sparse store. Returns the sparse store's voxels hit."""
+        vt, st, counts = self._vt, self._st, self._sparse_counts
+        written, runs = k.group_new_points(
+            new, seg, vt, st, counts, self._dense_min, self._max_hits, self._planes(k)
+        )
+        sparse_hits = int(runs[:, 3].sum())
+        ends = np.ascontiguousarray(written[:, 0])  # where the runs going dense end
+        if runs[:, 0].any():  # blocks left for want of room: grow the tables, then hit them
+            self._vt = self._fit(k, vt, counts[:, 0] + runs[:, 0], K.KEY_MASK)
+            self._st = self._fit(k, st, counts[:, 1] + runs[:, 1], K.BLOCK_MASK)
+            hits = k.upsert_sparse(
+                new, seg, written, self._vt, self._st, counts, self._dense_min, self._max_hits
+            )
+            sparse_hits += int(hits[:, 0].sum())
+            ends = np.where(hits[:, 1] > 0, written[:, 1], ends)  # promoted there too
+        first_new = self.n_blocks
+        adopt = np.empty(int(runs[:, 1:3].sum()), dtype=np.int64)  # dense + promoted runs
+        n_adopt = np.zeros(1, dtype=np.int64)
+        self._until_done(
+            lambda i: K.alloc_dense_runs(new, seg, ends, i, adopt, n_adopt, *self._storage())
+        )
+        self._fresh_blocks(first_new)
+        self._adopt(adopt[: int(n_adopt[0])])
+        return sparse_hits
+
+    @staticmethod
+    def _fit(
+        k: K.Kernels, table: NDArray[np.int64], need: NDArray[np.int64], kmask: np.int64
+    ) -> NDArray[np.int64]:
+        """``table``, or a rehashed larger copy, with room for ``need`` entries per region."""
+        size = size0 = len(table) >> K.NREG_BITS
+        while int(need.max()) > K.SPARSE_LOAD * size:
+            size *= 2
+        if size == size0:
+            return table
+        # np.zeros maps its pages lazily: the table is not written twice
+        out = np.zeros(size << K.NREG_BITS, dtype=np.int64)
+        k.sparse_rehash(table, kmask, out)
+        return out
+
+    def _adopt(self, slots: NDArray[np.int64]) -> None:
+        """New dense blocks ``slots`` (values NaN) take over their voxels from the sparse store."""
+        if len(slots) and self._sparse_counts[:, 0].any():
+            K.adopt_sparse(
+                slots,
+                self._values,
+                self._block_xyz,
+                self._vt,
+                self._st,
+                self._sparse_counts,
+                self._lut,
+            )
 
     def _storage(self) -> tuple[NDArray[Any], ...]:
         """The arrays the marking kernels share, as they are now (they grow)."""
@@ -238,14 +345,19 @@ class VoxelOctree:
 
     def _points(self, points: NDArray[np.floating]) -> tuple[NDArray[np.float32], int]:
         """Points as C-contiguous float32 (copied only if needed), non-finite rows dropped."""
-        arr = np.asarray(points)
-        if arr.ndim != 2 or arr.shape[1] != 3:
-            raise InputError(None, f"points must be an (N, 3) array, got shape {arr.shape}")
-        pts = np.ascontiguousarray(arr, dtype=np.float32)
+        pts = self._points_any(points)
         if np.isfinite(pts).all():  # one cheap pass for the usual case
             return pts, 0
         finite = np.isfinite(pts).all(axis=1)
         return np.ascontiguousarray(pts[finite]), int(len(pts) - finite.sum())
+
+    @staticmethod
+    def _points_any(points: NDArray[np.floating]) -> NDArray[np.float32]:
+        """Points as C-contiguous float32 (copied only if needed), non-finite rows kept."""
+        arr = np.asarray(points)
+        if arr.ndim != 2 or arr.shape[1] != 3:
+            raise InputError(None, f"points must be an (N, 3) array, got shape {arr.shape}")
+        return np.ascontiguousarray(arr, dtype=np.float32)
 
     def _grow(self, status: int) -> None:
         """Make room for the insertion kernels: more blocks, a longer list of blocks touched
@@ -303,7 +415,13 @@ class VoxelOctree:
 
     def __len__(self) -> int:
         """Number of known voxels."""
-        return int(np.count_nonzero(~np.isnan(self._values[: self.n_blocks])))
+        dense = np.count_nonzero(~np.isnan(self._values[: self.n_blocks]))
+        return int(dense) + self.n_sparse
+
+    @property
+    def n_sparse(self) -> int:
+        """Voxels held by the sparse store."""
+        return int(self._sparse_counts[:, 0].sum())
 
     @property
     def n_blocks(self) -> int:
@@ -315,19 +433,26 @@ class VoxelOctree:
 
     def logodds_at_keys(self, keys: NDArray[np.integer]) -> NDArray[np.float32]:
         k = np.ascontiguousarray(np.atleast_2d(keys), dtype=np.int64)
-        return np.asarray(K.lookup(k, self._values, self._table_keys, self._table_slots))
+        return np.asarray(
+            K.lookup(k, self._values, self._table_keys, self._table_slots, self._vt, self._lut)
+        )
 
     def is_occupied(self, logodds: NDArray[np.float32]) -> NDArray[np.bool_]:
         """OctoMap's isNodeOccupied: log-odds >= the threshold (NaN, unknown, is not)."""
         return np.asarray(logodds >= self._occ)
 
     def voxels(self) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
-        """Every known voxel: keys uint16 (M, 3) and log-odds float32 (M,), block by block."""
+        """Every known voxel: keys uint16 (M, 3) and log-odds float32 (M,), the dense store's
+        block by block, then the sparse store's."""
         vals = self._values[: self.n_blocks]
         known = ~np.isnan(vals)
         slot, local = np.nonzero(known)
-        keys = self._block_xyz[slot].astype(np.int64) * 8 + _LOCAL[local]
-        return keys.astype(np.uint16), vals[slot, local]
+        keys = (self._block_xyz[slot].astype(np.int64) * 8 + _LOCAL[local]).astype(np.uint16)
+        lo = vals[slot, local]
+        if self.n_sparse == 0:
+            return keys, lo
+        skeys, slo = K.sparse_voxels(self._vt, self._lut, self.n_sparse)
+        return np.concatenate([keys, skeys]), np.concatenate([lo, slo])
 
     def occupied_and_free(self) -> tuple[NDArray[np.uint16], NDArray[np.bool_]]:
         """Keys of every known voxel and whether it is occupied (the maximum-likelihood map)."""
@@ -370,6 +495,8 @@ class VoxelOctree:
             self._table_keys,
             self._table_slots,
             self._touched,
+            self._vt,
+            self._st,
         )
         return sum(a.nbytes for a in arrays)
 
@@ -386,5 +513,15 @@ class VoxelOctree:
         if len(self._table_keys) < 2 * len(self._bits):
             self._grow(K.NEED_TABLE)
         K.set_values(
-            k, v, self._values, self._block_xyz, self._table_keys, self._table_slots, self._counts
+            k,
+            v,
+            self._values,
+            self._block_xyz,
+            self._table_keys,
+            self._table_slots,
+            self._counts,
+            self._vt,
+            self._st,
+            self._sparse_counts,
+            self._lut,
         )
