@@ -280,17 +280,26 @@ def read_clouds(
     clouds = [read_cloud(f, las_classes=classes) for f in files]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
     origin = np.zeros(3)
-    if local and cfg.scans.local_origin == "auto":
+    if local:
         lo = np.min([c.points.min(axis=0) for c in clouds], axis=0)
         hi = np.max([c.points.max(axis=0) for c in clouds], axis=0)
-        if max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
-            origin = np.round((lo + hi) / 2)
-            notes.append(
-                "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(
-                    *origin
-                )
-            )
+        origin = local_origin(lo, hi, cfg, notes)
     return [c.points - origin for c in clouds], origin, notes
+
+
+def local_origin(
+    lo: NDArray[np.float64], hi: NDArray[np.float64], cfg: Config, notes: list[str]
+) -> NDArray[np.float64]:
+    """The origin to subtract from clouds spanning ``lo``..``hi`` (x, y, z): their rounded
+    centre when they lie beyond FAR of the origin and ``scans.local_origin`` is auto, else
+    zero; a note says which was subtracted."""
+    if cfg.scans.local_origin != "auto" or max(np.abs(lo).max(), np.abs(hi).max()) <= FAR:
+        return np.zeros(3)
+    origin: NDArray[np.float64] = np.round((np.asarray(lo) + np.asarray(hi)) / 2)
+    notes.append(
+        "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(*origin)
+    )
+    return origin
 
 
 def cloud2world(
@@ -307,13 +316,13 @@ def cloud2world(
     from scan2terrain.octree.bt import bt_bytes
 
     refuse_existing(out, overwrite)
-    from scan2terrain.readers.cloudfile import is_url
+    from scan2terrain.readers.cloudfile import is_url, url_path
 
     if streaming(cfg):
         from scan2terrain import stream
 
         streamed = stream.stream_clouds(files, cfg, stream_progress)
-        source = Path(str(files[0]).split("?")[0])
+        source = url_path(files[0])
         return stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
     for f in files:
         if is_url(f):

@@ -39,8 +39,6 @@ if TYPE_CHECKING:
     from scan2terrain.pipeline import Result
     from scan2terrain.readers.scans import BagPlan
 
-#: Beyond this distance from the origin (metres) cloud files get a local origin (as ingest.FAR).
-FAR = 1000.0
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
 #: file, or several small files (fewer, larger results to send back and merge).
 CHUNKS_PER_TASK = 4
@@ -122,11 +120,13 @@ def plan_clouds(
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
+    from scan2terrain.ingest import local_origin
     from scan2terrain.readers.cloudfile import (
         LAS_SUFFIXES,
         is_url,
         las_info,
         read_cloud,
+        url_path,
         url_suffix,
     )
 
@@ -141,7 +141,7 @@ def plan_clouds(
     for f in files:
         # Workers may run elsewhere: an absolute path, or the URL as given.
         path: Path | str = str(f) if is_url(f) else Path(f).resolve()
-        name = Path(str(path).split("?")[0]).name
+        name = url_path(path).name
         if url_suffix(path) in LAS_SUFFIXES:
             info = las_info(path)
             if info.points == 0:
@@ -167,14 +167,7 @@ def plan_clouds(
             n, fmt = len(cloud.points), cloud.format
         total += n
         notes.append(f"{name}: {n:,} points ({fmt})")
-    origin = np.zeros(3)
-    if cfg.scans.local_origin == "auto" and max(np.abs(lo).max(), np.abs(hi).max()) > FAR:
-        origin = np.round((lo + hi) / 2)
-        notes.append(
-            "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(
-                *origin
-            )
-        )
+    origin = local_origin(lo, hi, cfg, notes)
     job = Job(
         lattice_for(cfg),
         (float(origin[0]), float(origin[1]), float(origin[2])),
@@ -200,10 +193,9 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(task: Sequence[Chunk], job: Job, tiles: TileSet | None = None) -> TileSet:
-    """The tiles of a task's end points (one or more chunks), added to ``tiles`` (default: new
-    ones). The unit of work, on the client or a Dask worker."""
-    tiles = TileSet(job.lattice) if tiles is None else tiles
+def rasterise(task: Sequence[Chunk], job: Job) -> TileSet:
+    """The tiles of a task's end points (one or more chunks): a Dask task's work."""
+    tiles = TileSet(job.lattice)
     for _, points in _read_ahead(_numbered_points(task, job)):
         if points is not None:
             tiles.add_points(points)
@@ -346,9 +338,8 @@ def _numbered_points(
 
 def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None) -> TileSet:
     """The chunks as Dask tasks (:func:`tasks_of`); results merged on the client as they
-    complete. A task whose
-    worker dies is run again by Dask on another worker, and its result counts once: only a
-    completed task's result is merged, and every task completes once."""
+    complete. A task whose worker dies is run again by Dask on another worker, and its result
+    counts once: only a completed task's result is merged, and every task completes once."""
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -375,7 +366,7 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
                 )
             )
             client = stack.enter_context(Client(cluster))
-        tasks = tasks_of(chunks, cfg.stream.chunk_points * CHUNKS_PER_TASK)
+        tasks = tasks_of(chunks, st.chunk_points * CHUNKS_PER_TASK)
         futures = client.map(rasterise, tasks, job=job, pure=False)
         for done, future in enumerate(as_completed(futures), start=1):
             total.merge(future.result())

@@ -507,9 +507,7 @@ def _read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np
                     )
             for chunk in reader.chunk_iterator(LAS_CHUNK):
                 seen += len(chunk)
-                xyz = np.stack(
-                    [np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1
-                ).astype(np.float64, copy=False)
+                xyz = _xyz(chunk)
                 if classes is not None:
                     codes = np.asarray(chunk.classification)
                     present.update(np.unique(codes).tolist())
@@ -552,10 +550,14 @@ def is_url(name: Path | str) -> bool:
     return re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(name)) is not None
 
 
+def url_path(name: Path | str) -> Path:
+    """A path, or a URL as a path (its query and fragment dropped), for names and suffixes."""
+    return Path(re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else name)
+
+
 def url_suffix(name: Path | str) -> str:
-    """The lower-case extension of a path or URL (a URL's query and fragment ignored)."""
-    text = re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else str(name)
-    return Path(text).suffix.lower()
+    """The lower-case extension of a path or URL."""
+    return url_path(name).suffix.lower()
 
 
 @contextlib.contextmanager
