@@ -667,14 +667,16 @@ BAD_BAGS = [
 ]
 
 
+@pytest.mark.parametrize("stream", [False, True], ids=["octree", "stream"])
 @pytest.mark.parametrize("case", BAD_BAGS)
 def test_bad_bag_one_line_exit_2_nothing_written(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str, stream: bool
 ) -> None:
     named, args, message = _bad_bags(tmp_path / "in")[case]
     outs = tmp_path / "outs"
     outs.mkdir()
-    code, stdout, err = run(capsys, "bag2world", *args, "-o", outs / "w")
+    extra = ["--stream"] if stream else []
+    code, stdout, err = run(capsys, "bag2world", *args, "-o", outs / "w", *extra)
     assert code == 2 and stdout == ""
     assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {named}: "), err
     assert message in err
