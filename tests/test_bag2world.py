@@ -274,6 +274,7 @@ def test_tf_gap_scans_are_skipped_not_inserted_at_identity(
     bag = room.write(tmp_path / "gap.bag", "ros1")
     out = tmp_path / "gap"
     options = ["--simulator", "gz", "--no-filter", "--no-preview", "--model-name", "room"]
+    options += ["--geometry", "heightmap"]
     code, stdout, err = run(capsys, "bag2world", bag, "-o", out, *options)
     assert code == 0, err
     assert f"scans: {posed.sum()} inserted" in stdout
@@ -367,7 +368,11 @@ def test_ros2_copy_gives_the_outputs_of_the_ros1_original(
     ros1, ros2, options, must_have = TWINS[case]
     outputs = []
     for bag, name in ((ros1, "ros1"), (ros2, "ros2")):
-        code, stdout, err = run(capsys, "bag2world", bag, "-o", tmp_path / name, *options)
+        # Heightmaps for every twin: their PNG holds the whole grid (a wall mesh only the walls).
+        heightmap = ["--geometry", "heightmap"]
+        code, stdout, err = run(
+            capsys, "bag2world", bag, "-o", tmp_path / name, *options, *heightmap
+        )
         assert code == 0, err
         assert "scans: " in stdout
         outputs.append(normalised_outputs(tmp_path / name, bag))
@@ -591,7 +596,7 @@ def test_bag_world_loads_in_gazebo_and_lines_up_with_its_map(tmp_path: Path) -> 
     where the written map (map frame) has them, in gz-sim and in Classic."""
     room = synthetic_room("tf", n_scans=60)
     bag = room.write(tmp_path / "r.bag", "ros1")
-    cfg = load_config(None, {"terrain.height": 2.0})
+    cfg = load_config(None, {"terrain.height": 2.0, "world.geometry": "heightmap"})
     result = ingest.bag2world([bag], tmp_path / "w", cfg)
     assert {w.placement.simulator for w in result.worlds} == {"gz", "classic"}
     _, written = read_map_yaml(tmp_path / "w/map/map_gz.yaml")

@@ -25,14 +25,39 @@ def leftovers(parent: Path) -> list[str]:
     return sorted(p.name for p in parent.iterdir())
 
 
+HEIGHTMAP_FILES = (
+    "model.config",
+    "model.sdf",
+    "materials/textures/heightmap.png",
+    "materials/textures/floor.png",
+    "materials/textures/unknown.png",
+    "materials/textures/obstacle.png",
+    "materials/textures/normal.png",
+)
+MESH_FILES = (
+    "model.config",
+    "model.sdf",
+    "meshes/walls.stl",
+    "meshes/walls.dae",
+    "meshes/walls.obj",
+)
+
+
+@pytest.mark.parametrize("geometry", ["default", "heightmap"])
 def test_map2world_writes_the_documented_folder(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], geometry: str
 ) -> None:
+    """The folder the README documents: by default an occupancy map becomes a wall mesh."""
     out = tmp_path / "w"
-    code, stdout, err = run(capsys, "map2world", MAPS["tb3"], "-o", out)
+    options = [] if geometry == "default" else ["--geometry", geometry]
+    code, stdout, err = run(capsys, "map2world", MAPS["tb3"], "-o", out, *options)
     assert code == 0, err
     files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     name = next(p.name for p in (out / "models").iterdir() if not p.name.endswith("_classic"))
+    if geometry == "heightmap":
+        gz_files, classic_files = HEIGHTMAP_FILES, HEIGHTMAP_FILES[:3]
+    else:
+        gz_files = classic_files = MESH_FILES
     assert files == sorted(
         [
             "map/map.pgm",
@@ -40,24 +65,11 @@ def test_map2world_writes_the_documented_folder(
             "map/map_gz.yaml",
             "preview.png",
             "scan2terrain.yaml",
+            "spawn.yaml",
             "world_classic.world",
             "world_gz.sdf",
-            *(
-                f"models/{name}/{f}"
-                for f in (
-                    "model.config",
-                    "model.sdf",
-                    "materials/textures/heightmap.png",
-                    "materials/textures/floor.png",
-                    "materials/textures/unknown.png",
-                    "materials/textures/obstacle.png",
-                    "materials/textures/normal.png",
-                )
-            ),
-            *(
-                f"models/{name}_classic/{f}"
-                for f in ("model.config", "model.sdf", "materials/textures/heightmap.png")
-            ),
+            *(f"models/{name}/{f}" for f in gz_files),
+            *(f"models/{name}_classic/{f}" for f in classic_files),
         ]
     )
     assert f"GZ_SIM_RESOURCE_PATH={out}/models gz sim {out}/world_gz.sdf" in stdout

@@ -47,7 +47,7 @@ def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
 def build(
     source: Path, out: Path, *, command: str = "map2world", **overrides: object
 ) -> pipeline.Result:
-    cfg = load_config(None, {"terrain.height": H, **overrides})
+    cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
     run = pipeline.map2world if command == "map2world" else pipeline.image2world
     return run(source, out, cfg)
 

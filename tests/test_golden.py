@@ -23,6 +23,7 @@ from tests.conftest import IMAGES, MAPS
 GOLDEN = Path(__file__).parent / "golden/outputs.json"
 CASES = {
     **{f"map2world_{k}": ["map2world", str(v)] for k, v in MAPS.items()},
+    "map2world_willow_heightmap": ["map2world", str(MAPS["willow"]), "--geometry", "heightmap"],
     "image2world_bowl": ["image2world", str(IMAGES["bowl_rgb"]), "--resolution", "0.25"],
     "map2world_tb3_paper_options": [
         "map2world",

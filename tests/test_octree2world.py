@@ -27,7 +27,13 @@ FR079 = FIXTURES / "octomap/scan.dat.bz2"
 def test_bt_to_world_lands_in_the_map_frame(tmp_path: Path) -> None:
     cfg = load_config(
         None,
-        {"terrain.height": H, "filter.enabled": False, "octree.z_min": 0.1, "octree.z_max": 1.8},
+        {
+            "terrain.height": H,
+            "filter.enabled": False,
+            "octree.z_min": 0.1,
+            "octree.z_max": 1.8,
+            "world.geometry": "heightmap",
+        },
     )
     result = pipeline.octree2world(GEB079, tmp_path / "w", cfg)
     keys, occupied = read_bt(GEB079).expand()

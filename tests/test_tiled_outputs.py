@@ -51,7 +51,14 @@ def rolling(rows: int, cols: int) -> np.ndarray:
 
 def config(**overrides: object) -> Config:
     return load_config(
-        None, {"terrain.max_side": S, "filter.enabled": False, "world.simulator": "gz", **overrides}
+        None,
+        {
+            "terrain.max_side": S,
+            "filter.enabled": False,
+            "world.simulator": "gz",
+            "world.geometry": "heightmap",
+            **overrides,
+        },
     )
 
 

@@ -7,9 +7,12 @@ Heavy modules (numpy, Pillow, lxml) are imported only once a command runs, so ``
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
+
+from scan2terrain.config import GEOMETRIES
 
 EXAMPLES = """\
 examples:
@@ -140,11 +143,13 @@ def _geometry_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("walls (occupancy grids)")
     g.add_argument(
         "--geometry",
-        choices=("heightmap", "mesh", "boxes", "polylines"),
+        choices=GEOMETRIES,
         dest="world.geometry",
-        help="how occupied cells become walls: a heightmap (default), one extruded mesh "
-        "(STL/DAE/OBJ), the fewest boxes that cover them, or SDF polylines; map frame = world "
-        "frame in both simulators for all but heightmap",
+        help="how occupied cells become walls: one extruded mesh (STL/DAE/OBJ; exact, and the "
+        "fastest in physics), the fewest boxes that cover them, SDF polylines, or a heightmap "
+        "(slowest; 1-cell walls are knife edges); default auto: mesh for occupancy grids, "
+        "heightmap for height grids; map frame = world frame in both simulators for all but "
+        "heightmap (README: which geometry to pick)",
     )
     g.add_argument(
         "--simplify",
@@ -169,9 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
         "map2world",
         help="ROS map_server map (YAML + image) -> Gazebo world folder",
         description="Read a map_server map exactly as map_server does, filter it and write a "
-        "Gazebo heightmap world (gz-sim and/or Classic), the filtered map as map_server YAML+PGM "
-        "lined up with the world, a preview and the effective config.",
-        epilog="example:\n  scan2terrain map2world map.yaml -o out\n",
+        "Gazebo world (gz-sim and/or Classic: walls as one mesh by default, or boxes, polylines "
+        "or a heightmap), the filtered map as map_server YAML+PGM lined up with the world, a "
+        "spawn pose (spawn.yaml), a preview and the effective config.",
+        epilog="examples:\n  scan2terrain map2world map.yaml -o out\n"
+        "  scan2terrain map2world map.yaml -o out_heightmap --geometry heightmap\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     m.add_argument("map", type=Path, help="map_server YAML file")
@@ -709,6 +716,31 @@ def _minus(v: float) -> str:
     return f"- {v:g}" if v >= 0 else f"+ {-v:g}"
 
 
+def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
+    """Where to spawn a robot (spawn.yaml), and the commands that put ROBOT.sdf there."""
+    x, y, z, _, _, yaw = (f"{v:g}" for v in pose)
+    head = f"    spawn a robot at x={x} y={y} z={z} yaw={yaw} (spawn.yaml), e.g.:"
+    if simulator == "gz":
+        qz, qw = math.sin(pose[5] / 2), math.cos(pose[5] / 2)
+        req = (
+            f'sdf_filename: "ROBOT.sdf", name: "robot", pose: {{position: {{x: {x}, y: {y},'
+            f" z: {z}}}, orientation: {{z: {qz:.6g}, w: {qw:.6g}}}}}"
+        )
+        return [
+            head,
+            "      gz service -s /world/scan2terrain/create --reqtype gz.msgs.EntityFactory"
+            f" --reptype gz.msgs.Boolean --timeout 5000 --req '{req}'",
+            "      ros2 run ros_gz_sim create -world scan2terrain -file ROBOT.sdf -name robot"
+            f" -x {x} -y {y} -z {z} -Y {yaw}",
+        ]
+    return [
+        head,
+        f"      gz model --spawn-file=ROBOT.sdf --model-name=robot -x {x} -y {y} -z {z} -Y {yaw}",
+        "      rosrun gazebo_ros spawn_model -sdf -file ROBOT.sdf -model robot"
+        f" -x {x} -y {y} -z {z} -Y {yaw}",
+    ]
+
+
 def report(result: Any) -> str:
     """How to open what was written, for a human."""
     out = result.out
@@ -749,6 +781,8 @@ def report(result: Any) -> str:
             ]
         if w.map_yaml is not None:
             lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
+        if w.spawn is not None:
+            lines += _spawn_lines(p.simulator, w.spawn)
     if result.preview is not None:
         lines.append(f"  preview (original | filtered | difference): {result.preview}")
     for note in getattr(result, "notes", []):

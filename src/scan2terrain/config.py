@@ -17,7 +17,7 @@ from scan2terrain.errors import ConfigError
 FILTERS = ("none", "median", "majority", "paper", "thin_wall")
 UNKNOWN_POLICIES = ("free", "obstacle", "height")
 SIMULATORS = ("gz", "classic", "both")
-GEOMETRIES = ("heightmap", "mesh", "boxes", "polylines")
+GEOMETRIES = ("auto", "heightmap", "mesh", "boxes", "polylines")
 POSE_SOURCES = ("auto", "tf", "odom", "trajectory", "fixed")
 
 
@@ -80,10 +80,12 @@ class WorldConfig:
     model_name: str | None = None
     #: Vertex sampling written into the SDF (None: 1 for gz, 2 for classic, each one's default).
     sampling: int | None = None
-    #: How occupancy grids become walls: heightmap | mesh (extruded outlines: STL, DAE, OBJ)
-    #: | boxes (the fewest boxes covering the occupied cells) | polylines (SDF <polyline>),
-    #: each ``terrain.height`` high on a ground plane, map frame = world frame in both simulators.
-    geometry: str = "heightmap"
+    #: How occupancy grids become walls: mesh (extruded outlines: STL, DAE, OBJ) | boxes (the
+    #: fewest boxes covering the occupied cells) | polylines (SDF <polyline>), each
+    #: ``terrain.height`` high on a ground plane, map frame = world frame in both simulators;
+    #: or heightmap. auto: mesh for occupancy grids (exact and the fastest in physics), a
+    #: heightmap for heights (images, DEMs, height grids, ``terrain.unknown: height``).
+    geometry: str = "auto"
     #: Outline simplification for mesh/polylines: staircases straightened within this many
     #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
     simplify: float = 0.0
@@ -264,7 +266,7 @@ class Config:
         _check(
             0 <= w.simplify < float("inf"), "world.simplify", w.simplify, ">= 0 metres (0: exact)"
         )
-        walls = w.geometry != "heightmap"
+        walls = w.geometry not in ("auto", "heightmap")
         _check(
             not walls or c.terrain.unknown != "height",
             "terrain.unknown",
@@ -378,6 +380,17 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def for_grid(self, grid: str) -> Config:
+        """This config with ``world.geometry: auto`` resolved for a ``grid`` of ``occupancy``
+        or ``heights``: a mesh of walls for occupancy (unless unknown cells have a height of
+        their own), a heightmap for heights. The effective config then says what was built."""
+        w = self.world
+        if w.geometry != "auto":
+            return self
+        walls = grid == "occupancy" and self.terrain.unknown != "height"
+        world = dataclasses.replace(w, geometry="mesh" if walls else "heightmap")
+        return dataclasses.replace(self, world=world)
 
 
 def _check(ok: bool, name: str, value: object, want: str) -> None:

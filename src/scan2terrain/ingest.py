@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.pipeline import Result, occupancy_world, refuse_existing, voxels_world
+from scan2terrain.pipeline import Result, Start, occupancy_world, refuse_existing, voxels_world
 from scan2terrain.types import OccupancyGrid, Pose2D, Transform
 
 if TYPE_CHECKING:
@@ -49,6 +49,14 @@ class Ingest:
     scans: int
     points: int
     notes: tuple[str, ...]
+    start: Start | None = None  #: the first scan's sensor pose: where the robot started
+
+
+def start_of(scan: PosedScan) -> Start:
+    """Where the robot was at its first posed scan: the sensor's position and heading."""
+    x, y = float(scan.origin[0]), float(scan.origin[1])
+    why = f"from the recorded start ({scan.topic} at {scan.stamp_ns / 1e9:.3f} s)"
+    return Start(Pose2D(x, y, scan.heading), why)
 
 
 def streaming(cfg: Config) -> bool:
@@ -131,6 +139,7 @@ def bag2world(
         cfg=cfg,
         overwrite=overwrite,
         extra=extra,
+        start=ingest.start,
     )
     result.notes = list(ingest.notes)
     return result
@@ -149,7 +158,10 @@ def bag_octree(
     if progress is not None:
         total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
     batch = EndpointBatch(tree) if cfg.scans.insert == "endpoints" else None
+    start = None
     for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
+        if start is None:
+            start = start_of(scan)
         if batch is not None:
             batch.add(_hits_of(scan))
         else:
@@ -174,7 +186,7 @@ def bag_octree(
         notes.append(f"scans without a valid point, skipped: {counts.empty}")
     if plan.tf is not None:
         notes += [f"tf: {p}" for p in plan.tf.problems()]
-    return tree, Ingest(counts.inserted, counts.points, tuple(notes))
+    return tree, Ingest(counts.inserted, counts.points, tuple(notes), start)
 
 
 def _insert(tree: VoxelOctree, scan: PosedScan, source: Path) -> None:

@@ -52,7 +52,8 @@ from scan2terrain.grids import (
     upsample,
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
-from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+from scan2terrain.grids.spawn import find_spawn
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D, Spawn
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -62,9 +63,18 @@ ScalarT = TypeVar("ScalarT", bound=np.generic)
 
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 CONFIG_FILE = "scan2terrain.yaml"
+SPAWN_FILE = "spawn.yaml"
 
 #: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
 Terrain = Heightmap | TiledHeightmap
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where the robot was when the recording began (map frame), to spawn it there again."""
+
+    pose: Pose2D
+    why: str
 
 
 @dataclass(frozen=True)
@@ -82,6 +92,8 @@ class WorldOutput:
     models: Path
     map_yaml: Path | None
     map_tiles: tuple[Path, ...] = ()
+    #: Where to spawn a robot, in this world's frame: (x, y, z, roll, pitch, yaw).
+    spawn: tuple[float, float, float, float, float, float] | None = None
 
 
 @dataclass
@@ -99,6 +111,7 @@ class Result:
     geometry: str = "heightmap"  #: world.geometry of the worlds written
     walls: str = ""  #: for wall geometries: what the walls are made of, for the report
     tiles: tuple[int, int] = (1, 1)  #: heightmap tiles along y and x (terrain.max_side)
+    spawn: Spawn | None = None  #: where a robot can start, map frame (each world's: worlds)
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -237,10 +250,13 @@ def occupancy_world(
     *,
     overwrite: bool,
     extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
 ) -> Result:
     """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
     (unknown policy) -> heightmap -> worlds, map_server map, preview. ``extra`` files (relative
-    name -> bytes) are written into the same folder."""
+    name -> bytes) are written into the same folder; ``start`` is where the robot started
+    (the spawn pose is searched from there; None: from the map origin)."""
+    cfg = cfg.for_grid("occupancy")
     trinary = invert_occupancy(grid.data) if cfg.canvas.invert else grid.data
     trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
@@ -253,6 +269,7 @@ def occupancy_world(
             overwrite=overwrite,
             preview=preview_png(trinary, filtered, occupancy=True),
             extra=extra,
+            start=start,
         )
 
     aligned, world_origin = axis_align(filtered, origin, grid.resolution, fill=UNKNOWN)
@@ -272,6 +289,14 @@ def occupancy_world(
         map_out=OccupancyGrid(aligned, grid.resolution, world_origin),
         preview=preview_png(trinary, filtered, occupancy=True),
         extra=extra,
+        spawn=spawn_for(
+            heights,
+            grid.resolution,
+            world_origin,
+            start,
+            ground=heights <= 0,
+            free=aligned == FREE,
+        ),
     )
 
 
@@ -315,10 +340,11 @@ def voxels_world(
     cfg: Config,
     overwrite: bool,
     extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
 ) -> Result:
     """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
     projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
-    centres when ``octree.points`` asks for them."""
+    centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_world`."""
     from scan2terrain.grids import projection
 
     extra = dict(extra or {})
@@ -335,12 +361,14 @@ def voxels_world(
     z_max = math.inf if o.z_max is None else o.z_max
     if o.grid == "occupancy":
         grid = projection.project_occupancy(keys, occupied, resolution, z_min=z_min, z_max=z_max)
-        return occupancy_world(grid, source, out, cfg, overwrite=overwrite, extra=extra)
+        return occupancy_world(
+            grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start
+        )
     stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max)
     if not stats.known.any():
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
     heights = fill_holes(stats.to_height_grid(o.height_stat), cfg)
-    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra)
+    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start)
 
 
 def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
@@ -380,11 +408,12 @@ def height_world(
     *,
     overwrite: bool,
     extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
 ) -> Result:
     """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known
     height. Filters: the plain median (``filter.size``) when filtering is on, as heights are
-    not labels."""
-    heightmap_only(cfg, "a height grid")
+    not labels. ``start`` as for :func:`occupancy_world`."""
+    cfg = heightmap_only(cfg, "a height grid")
     heights = grid.heights
     known = grid.known
     floor = float(heights[known].min()) if known.any() else 0.0
@@ -408,6 +437,7 @@ def height_world(
             _grey8(before, floor, top), _grey8(filled, floor, top), occupancy=False
         ),
         extra=extra,
+        spawn=spawn_for(aligned, grid.resolution, world_origin, start),
     )
 
 
@@ -421,7 +451,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     """Any image to a Gazebo world folder: luminance is height, white is ``terrain.height``."""
     from scan2terrain.readers import read_grey_image
 
-    heightmap_only(cfg, "image2world")
+    cfg = heightmap_only(cfg, "image2world")
     refuse_existing(out, overwrite)
     img = read_grey_image(image_path, max_pixels=cfg.max_pixels)
     values = np.ascontiguousarray(np.flipud(img.values))
@@ -452,6 +482,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
         levels=levels,
         map_out=None,
         preview=preview_png(values, filtered, occupancy=False),
+        spawn=spawn_for(heights, res, world_origin, None),
     )
 
 
@@ -476,6 +507,7 @@ def walls_world(
     overwrite: bool,
     preview: bytes,
     extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
 ) -> Result:
     """A filtered trinary grid to a world of walls (``world.geometry``: mesh, boxes, polylines).
 
@@ -485,24 +517,27 @@ def walls_world(
     origin in both simulators: a map point (x, y) is the world point (x, y). The map/ folder,
     preview and config are written as for heightmaps (map/ in world axes, ``grids.axis_align``).
 
-    Raises
-    ------
-    InputError
-        If no cell is a wall (nothing is written).
+    A grid without a wall cell gives the ground plane alone.
     """
     t, kind = cfg.terrain, cfg.world.geometry
     walls = grid.data == OCCUPIED
     if t.unknown == "obstacle":
         walls |= grid.data == UNKNOWN
-    if not walls.any():
-        raise InputError(
-            source, f"no occupied cell (after filtering) to build --geometry {kind} walls from"
-        )
     r, origin = grid.resolution, grid.origin
     rows, cols = walls.shape
     cx, cy = origin.transform(np.array(cols * r / 2), np.array(rows * r / 2))
     ground = sdf.Ground((float(cx), float(cy)), (cols * r, rows * r), origin.yaw)
-    made = _walls(walls, r, origin, ground=ground, cfg=cfg, source=source)
+    if walls.any():
+        made = _walls(walls, r, origin, ground=ground, cfg=cfg, source=source)
+    else:
+        made = _Walls(
+            lambda p, comment: sdf.boxes_model_sdf(p, ground, np.empty((0, 5)), comment=comment),
+            {},
+            "no wall cell: the ground plane alone",
+        )
+    spawn = spawn_for(
+        np.where(walls, t.height, 0.0), r, origin, start, ground=~walls, free=grid.data == FREE
+    )
     described = (
         f" Generated by scan2terrain from {source.name}: walls {t.height!r} m high on a ground"
         f" plane, from the {int(walls.sum())} wall cells of a {rows}x{cols} grid at {r!r} m/cell"
@@ -516,7 +551,9 @@ def walls_world(
     aligned, world_origin = axis_align(grid.data, origin, r, fill=UNKNOWN)
     map_out = OccupancyGrid(aligned, r, world_origin)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
-    result = Result(out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary)
+    result = Result(
+        out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary, spawn=spawn
+    )
     result.notes.extend(_map_notes(cfg, map_out))
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, map_out)
@@ -528,11 +565,15 @@ def walls_world(
                 od.write(f"{mdir}/{rel}", data)
             od.write(f"{mdir}/model.sdf", made.model_sdf(p, described))
             od.write(f"{mdir}/model.config", sdf.model_config(p, f"Walls from {source.name}"))
+            pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
             world = od.write(
-                WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=described)
+                WORLD_FILES[sim],
+                sdf.world_sdf(
+                    p, world_name="scan2terrain", comment=described + spawn_comment(spawn, pose)
+                ),
             )
             yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=(0.0, 0.0), comment=described)
-            result.worlds.append(_world_output(p, world, out / "models", yamls))
+            result.worlds.append(_world_output(p, world, out / "models", yamls, pose))
         _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
@@ -644,7 +685,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     from scan2terrain.readers.dem import read_dem
 
     refuse_existing(out, overwrite)
-    heightmap_only(cfg, "dem2world")
+    cfg = heightmap_only(cfg, "dem2world")
     t = cfg.terrain
     if t.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
         raise ConfigError(
@@ -716,6 +757,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
         preview=preview_png(_grey8(before, z0, top), _grey8(heights, z0, top), occupancy=False),
         extra=extra,
         comment_extra="".join(f" {n}\n" for n in notes),
+        spawn=spawn_for(above + np.float32(z0), res, origin, None),
     )
     result.notes.extend(notes)
     return result
@@ -839,13 +881,16 @@ def _gz_side(k: int) -> int:
 # --- writing ---------------------------------------------------------------------------------
 
 
-def heightmap_only(cfg: Config, what: str) -> None:
-    """Refuse wall geometries for inputs that are heights, not occupancy."""
+def heightmap_only(cfg: Config, what: str) -> Config:
+    """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
+    refuses wall geometries."""
+    cfg = cfg.for_grid("heights")
     if cfg.world.geometry != "heightmap":
         raise ConfigError(
             f"world.geometry {cfg.world.geometry} needs an occupancy grid (map2world, or"
             f" octree/bag/cloud2world with octree.grid occupancy); {what} makes heightmaps only"
         )
+    return cfg
 
 
 def refuse_existing(out: Path, overwrite: bool) -> None:
@@ -895,6 +940,7 @@ def _write(
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: bytes,
+    spawn: Spawn,
     extra: dict[str, bytes] | None = None,
     comment_extra: str = "",
 ) -> Result:
@@ -910,11 +956,14 @@ def _write(
             preview=preview,
             extra=extra,
             comment_extra=comment_extra,
+            spawn=spawn,
         )
     png = hm.png()
     base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
-    result = Result(out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range)
+    result = Result(
+        out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range, spawn=spawn
+    )
     result.notes.extend(_map_notes(cfg, map_out))
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, map_out)
@@ -929,11 +978,16 @@ def _write(
                     od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
             od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
             od.write(f"{mdir}/model.config", sdf.model_config(p, f"Terrain from {source.name}"))
+            # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
+            pose = spawn_pose(spawn, p.offset, 0.0 if sim == GZ else hm.z_min)
             world = od.write(
-                WORLD_FILES[sim], sdf.world_sdf(p, world_name="scan2terrain", comment=comment)
+                WORLD_FILES[sim],
+                sdf.world_sdf(
+                    p, world_name="scan2terrain", comment=comment + spawn_comment(spawn, pose)
+                ),
             )
             yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=p.offset, comment=comment)
-            result.worlds.append(_world_output(p, world, out / "models", yamls))
+            result.worlds.append(_world_output(p, world, out / "models", yamls, pose))
         _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
@@ -950,6 +1004,7 @@ def _write_tiled(
     preview: bytes,
     extra: dict[str, bytes] | None,
     comment_extra: str,
+    spawn: Spawn,
 ) -> Result:
     """Terrain tiles: one model per tile (models/<name>_<row>_<col>/), one gz-sim world that
     includes them all. Gazebo Classic is refused (``world.simulator: classic``) or left out with
@@ -979,6 +1034,7 @@ def _write_tiled(
         resolution=r,
         size_z=tiled.span,
         tiles=(rows, cols),
+        spawn=spawn,
     )
     result.notes.append(
         f"Terrain: {h}x{w} samples at {r:g} m/px, over terrain.max_side {tiled.max_side}: "
@@ -1005,23 +1061,96 @@ def _write_tiled(
             description = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
             od.write(f"{mdir}/model.config", sdf.model_config(p, description))
             placements.append(p)
+        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
         world = od.write(
             WORLD_FILES[GZ],
-            sdf.tiled_world_sdf(placements, world_name="scan2terrain", comment=world_comment),
+            sdf.tiled_world_sdf(
+                placements,
+                world_name="scan2terrain",
+                comment=world_comment + spawn_comment(spawn, pose),
+            ),
         )
         yamls = _write_map_yaml(od, cfg, map_out, sim=GZ, offset=(0.0, 0.0), comment=world_comment)
         whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
-        result.worlds.append(_world_output(whole, world, out / "models", yamls))
+        result.worlds.append(_world_output(whole, world, out / "models", yamls, pose))
         _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
 
 def _world_output(
-    p: sdf.Placement, world: Path, models: Path, yamls: tuple[Path, ...]
+    p: sdf.Placement,
+    world: Path,
+    models: Path,
+    yamls: tuple[Path, ...],
+    spawn: tuple[float, float, float, float, float, float],
 ) -> WorldOutput:
     if len(yamls) == 1:
-        return WorldOutput(p, world, models, yamls[0])
-    return WorldOutput(p, world, models, None, yamls)
+        return WorldOutput(p, world, models, yamls[0], spawn=spawn)
+    return WorldOutput(p, world, models, None, yamls, spawn=spawn)
+
+
+# --- spawn pose ------------------------------------------------------------------------------
+
+
+def spawn_for(
+    heights: NDArray[np.floating],
+    resolution: float,
+    origin: Pose2D,
+    start: Start | None,
+    *,
+    ground: NDArray[np.bool_] | None = None,
+    free: NDArray[np.bool_] | None = None,
+) -> Spawn:
+    """The spawn spot of a world's ground (map frame; see grids/spawn.py): searched from the
+    robot's recorded start when there is one, else from the map origin (or the centre)."""
+    if start is None:
+        return find_spawn(heights, resolution, origin, ground=ground, free=free)
+    p = start.pose
+    return find_spawn(
+        heights, resolution, origin, preferred=(p.x, p.y), yaw=p.yaw, ground=ground,
+        free=free, why=start.why,
+    )  # fmt: skip
+
+
+def spawn_pose(
+    spawn: Spawn, offset: tuple[float, float], z_offset: float
+) -> tuple[float, float, float, float, float, float]:
+    """The spawn spot in one world's frame: (x, y, z, roll, pitch, yaw), map minus offsets,
+    rounded to the millimetre (and milliradian) for files and commands."""
+    return (
+        round(spawn.x - offset[0], 3) + 0.0,
+        round(spawn.y - offset[1], 3) + 0.0,
+        round(spawn.z - z_offset, 3) + 0.0,
+        0.0,
+        0.0,
+        round(spawn.yaw, 3) + 0.0,
+    )
+
+
+def spawn_comment(spawn: Spawn, pose: tuple[float, ...]) -> str:
+    x, y, z, _, _, yaw = pose
+    return (
+        f" Spawn a robot at x={x:g} y={y:g} z={z:g} yaw={yaw:g} (this world's frame; z is the"
+        f" ground, see spawn.yaml): {spawn.why}.\n"
+    )
+
+
+def _spawn_yaml(result: Result) -> bytes:
+    """spawn.yaml: the spawn pose in every world of the folder, and how it was chosen."""
+    import yaml
+
+    assert result.spawn is not None
+    doc: dict[str, object] = {"why": result.spawn.why}
+    for w in result.worlds:
+        if w.spawn is not None:
+            doc[w.placement.simulator] = {"world": w.world.name, "pose": list(w.spawn)}
+    header = (
+        "# Where to spawn a robot in each world of this folder (scan2terrain): pose is\n"
+        "# [x, y, z, roll, pitch, yaw] in that world's frame (metres, radians); z is the\n"
+        "# highest ground under a 1.5 x 1.5 m footprint, so a robot whose model origin is at\n"
+        "# its lowest point rests there.\n"
+    )
+    return (header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)).encode()
 
 
 def _map_parts(cfg: Config, map_out: OccupancyGrid) -> list[tuple[str, OccupancyGrid]]:
@@ -1099,6 +1228,8 @@ def _write_tail(
 
     if cfg.output.preview:
         result.preview = od.write("preview.png", preview)
+    if result.spawn is not None and result.worlds:
+        od.write(SPAWN_FILE, _spawn_yaml(result))
     for name, data in (extra or {}).items():
         od.write(name, data)
     header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"

@@ -36,7 +36,7 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileSet
 
 if TYPE_CHECKING:
-    from scan2terrain.pipeline import Result
+    from scan2terrain.pipeline import Result, Start
     from scan2terrain.readers.scans import BagPlan
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
@@ -99,6 +99,7 @@ class Streamed:
 
     tiles: TileSet
     notes: tuple[str, ...]
+    start: Start | None = None  #: a bag's first scan pose, as the octree path finds it
 
 
 # --- planning ---------------------------------------------------------------------------------
@@ -390,14 +391,19 @@ def stream_clouds(
 def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
+    from scan2terrain.ingest import start_of
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.scans import plan_bag
+    from scan2terrain.readers.scans import ScanCounts, plan_bag, posed_scans
 
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans)
         if plan.map_topic is not None:
             raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to stream")
         bag.require_messages(plan.scan_topics, plan.start_ns, plan.end_ns)
+        # The first posed scan only (one batch of messages): the spawn pose's starting point.
+        scans = posed_scans(bag, cfg.scans, plan, ScanCounts(), max_range=cfg.octree.max_range)
+        first = next(scans, None)
+        del scans
         messages = sum(bag.count(plan.scan_topics).values())
         lo = bag.start_ns if plan.start_ns is None else max(plan.start_ns, bag.start_ns)
         hi = bag.end_ns if plan.end_ns is None else min(plan.end_ns, bag.end_ns)
@@ -405,7 +411,7 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
     tiles = run(chunks, job, cfg, progress)
     notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
-    return Streamed(tiles, tuple(notes))
+    return Streamed(tiles, tuple(notes), None if first is None else start_of(first))
 
 
 def streamed_world(
@@ -420,9 +426,11 @@ def streamed_world(
     if tiles.points == 0:
         raise InputError(source, "no point in the z band: nothing to make a grid of")
     if cfg.octree.grid == "occupancy":
-        result = occupancy_world(tiles.occupancy(), source, out, cfg, overwrite=overwrite)
+        result = occupancy_world(
+            tiles.occupancy(), source, out, cfg, overwrite=overwrite, start=streamed.start
+        )
     else:
         heights = fill_holes(tiles.heights(cfg.octree.height_stat), cfg)
-        result = height_world(heights, source, out, cfg, overwrite=overwrite)
+        result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
     result.notes = [*streamed.notes, f"points counted: {tiles.points:,}"]
     return result

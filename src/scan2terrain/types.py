@@ -152,3 +152,19 @@ class Transform:
     def inverse(self) -> Transform:
         rt = self.rotation.T
         return Transform(rt, -(rt @ self.translation))
+
+
+@dataclass(frozen=True)
+class Spawn:
+    """Where a robot can start, in the map frame.
+
+    ``(x, y)`` is the centre of the robot's footprint (metres), ``z`` the highest ground under
+    it (metres, so a robot whose model origin is at its lowest point rests there), ``yaw`` its
+    heading (radians CCW from the map's x axis); ``why`` says how the spot was chosen.
+    """
+
+    x: float
+    y: float
+    z: float
+    yaw: float
+    why: str

@@ -82,6 +82,8 @@ class PosedScan:
     stamp_ns : int
         The scan's header stamp (bag time if the stamp is zero).
     topic : str
+    heading : float
+        Yaw of the sensor's x axis in the fixed frame (radians CCW).
     """
 
     points: NDArray[np.float64]
@@ -89,6 +91,7 @@ class PosedScan:
     max_range: float
     stamp_ns: int
     topic: str
+    heading: float = 0.0
 
 
 @dataclass
@@ -405,9 +408,9 @@ def _pose_batch(
                 continue
             world = pts @ np.ascontiguousarray(rot[j].T)  # a transposed view is a slow matmul
             world += trans[j]
-            out.append(
-                PosedScan(world, np.array(trans[j], dtype=np.float64), mr, int(stamps[j]), topic)
-            )
+            heading = math.atan2(float(rot[j][1, 0]), float(rot[j][0, 0]))
+            origin = np.array(trans[j], dtype=np.float64)
+            out.append(PosedScan(world, origin, mr, int(stamps[j]), topic, heading))
     out.sort(key=lambda s: s.stamp_ns)
     yield from out
 

@@ -1,0 +1,156 @@
+"""Where a robot can start in a world: a level spot with room for it, near a preferred point.
+
+The ground is the world's own height field in the map frame (walls at their height, floor at
+its own): a spot is *level* when the ground under a square of ``FOOTPRINT`` metres a side (room
+for a 1 x 1 m robot at any heading, with a margin) varies by no more than ``LEVEL_SLOPE`` across
+it, and *free* when, where the caller knows it, every cell under it is known free space. The
+chosen spot is the free, level cell nearest the preferred point, else the level one nearest,
+else the most level one; ``z`` is the highest ground under the footprint.
+
+Pure array work (scipy's separable min/max filters); searched first within ``NEAR`` metres of the
+preferred point, the whole grid only when nothing there will do.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from scan2terrain.types import Pose2D, Spawn
+
+#: Side of the square that must be level (metres): a 1 x 1 m robot turned any way fits in a
+#: circle of radius 0.71 m; 1.5 m leaves it 4 cm each side.
+FOOTPRINT = 1.5
+#: Largest ground slope across the footprint, as rise over run (tan 3 degrees), and the smallest
+#: rise always accepted (metres): heightmap quantisation and sensor noise on a flat floor.
+LEVEL_SLOPE = math.tan(math.radians(3.0))
+LEVEL_RISE = 0.02
+#: The first search looks this far (metres) from the preferred point.
+NEAR = 25.0
+
+
+def find_spawn(
+    heights: NDArray[np.floating],
+    resolution: float,
+    origin: Pose2D,
+    *,
+    preferred: tuple[float, float] | None = None,
+    yaw: float = 0.0,
+    ground: NDArray[np.bool_] | None = None,
+    free: NDArray[np.bool_] | None = None,
+    why: str = "",
+) -> Spawn:
+    """The spawn spot of a height field (``heights`` (H, W) metres, grid order: row 0 = lowest
+    y; every cell a height, as the world has it).
+
+    ``preferred`` is a map-frame point (None: the map origin when it lies on the grid, else the
+    grid's centre); ``ground`` marks the cells a robot may stand on (None: all; walls are not),
+    ``free`` those known to be free space (preferred; None: all ground). ``yaw`` is
+    passed through; ``why`` (how the preferred point was chosen) starts the spawn's ``why``.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or h.size == 0:
+        raise ValueError(f"heights must be a non-empty 2D array, got shape {h.shape}")
+    rows, cols = h.shape
+    r = float(resolution)
+    if preferred is None:
+        preferred, why = _default_point(rows, cols, r, origin)
+    row, col = _cell_of(preferred, r, origin)
+    half = max(1, math.ceil(FOOTPRINT / 2 / r + 0.5) - 1)
+    near = max(half + 1, math.ceil(NEAR / r))
+    window = (
+        slice(max(0, min(row, rows - 1) - near), min(rows, max(row, 0) + near + 1)),
+        slice(max(0, min(col, cols - 1) - near), min(cols, max(col, 0) + near + 1)),
+    )
+    ok = np.ones(h.shape, dtype=bool) if ground is None else np.asarray(ground, dtype=bool)
+    pref = ok if free is None else ok & free
+    (pr, pc), z, how = _search(h, ok, pref, half=half, r=r, row=row, col=col, part=window)
+    if how != "free" and window != (slice(0, rows), slice(0, cols)):
+        better = _search(
+            h, ok, pref, half=half, r=r, row=row, col=col, part=(slice(0, rows), slice(0, cols))
+        )
+        if _RANK[better[2]] < _RANK[how]:
+            (pr, pc), z, how = better
+    x, y = origin.transform(np.array((pc + 0.5) * r), np.array((pr + 0.5) * r))
+    where = f"{why}: " if why else ""
+    return Spawn(float(x), float(y), z, float(yaw), f"{where}{_HOW[how]}")
+
+
+_RANK = {"free": 0, "level": 1, "flattest": 2}
+_HOW = {
+    "free": "the nearest free, level spot with room for a 1 x 1 m robot",
+    "level": "the nearest level spot with room for a 1 x 1 m robot (no known free space there)",
+    "flattest": "no level spot has room for a 1 x 1 m robot: the flattest one",
+}
+
+
+def _default_point(
+    rows: int, cols: int, r: float, origin: Pose2D
+) -> tuple[tuple[float, float], str]:
+    c, s = math.cos(origin.yaw), math.sin(origin.yaw)
+    # The map origin in grid-local metres.
+    u = c * -origin.x + s * -origin.y
+    v = -s * -origin.x + c * -origin.y
+    if 0 <= u <= cols * r and 0 <= v <= rows * r:
+        return (0.0, 0.0), "near the map origin"
+    x, y = origin.transform(np.array(cols * r / 2), np.array(rows * r / 2))
+    return (float(x), float(y)), "near the map's centre (the origin is off the map)"
+
+
+def _cell_of(point: tuple[float, float], r: float, origin: Pose2D) -> tuple[int, int]:
+    c, s = math.cos(origin.yaw), math.sin(origin.yaw)
+    dx, dy = point[0] - origin.x, point[1] - origin.y
+    u, v = c * dx + s * dy, -s * dx + c * dy
+    return math.floor(v / r), math.floor(u / r)
+
+
+def _search(
+    whole: NDArray[np.float64],
+    whole_ground: NDArray[np.bool_],
+    whole_free: NDArray[np.bool_],
+    *,
+    half: int,
+    r: float,
+    row: int,
+    col: int,
+    part: tuple[slice, slice],
+) -> tuple[tuple[int, int], float, str]:
+    """The best cell of one part of the grid: ((row, col) in the whole grid, z, how)."""
+    h = whole[part]
+    ground, free = whole_ground[part], whole_free[part]
+    size = 2 * half + 1
+    top = ndimage.maximum_filter(h, size=size, mode="nearest")
+    relief = top - ndimage.minimum_filter(h, size=size, mode="nearest")
+    # Room: the footprint lies on the grid (cells nearer the border than ``half`` do not).
+    inside = np.zeros(h.shape, dtype=bool)
+    if h.shape[0] > 2 * half and h.shape[1] > 2 * half:
+        inside[half:-half, half:-half] = True
+    level = inside & (relief <= max(LEVEL_RISE, LEVEL_SLOPE * size * r))
+    r0, c0 = part[0].start, part[1].start
+    rr, cc = np.indices(h.shape)
+    dist2 = (rr + r0 - row) ** 2 + (cc + c0 - col) ** 2
+
+    def room(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        under: NDArray[np.bool_] = ndimage.minimum_filter(cells.view(np.uint8), size=size) > 0
+        return under
+
+    on_ground = room(ground)
+    choices = [("free", level & room(free)), ("level", level & on_ground)]
+    for how, ok in choices:
+        if ok.any():
+            flat = np.where(ok, dist2, np.iinfo(np.int64).max)
+            i = int(np.argmin(flat))
+            pr, pc = divmod(i, h.shape[1])
+            return (pr + r0, pc + c0), float(top[pr, pc]), how
+    candidates = inside & on_ground
+    if not candidates.any():
+        candidates = inside if inside.any() else np.ones(h.shape, dtype=bool)
+    # Nothing level: the flattest spot, nearest among equals.
+    key = np.where(candidates, relief, np.inf)
+    best = key == key.min()
+    i = int(np.argmin(np.where(best, dist2, np.iinfo(np.int64).max)))
+    pr, pc = divmod(i, h.shape[1])
+    return (pr + r0, pc + c0), float(top[pr, pc]), "flattest"

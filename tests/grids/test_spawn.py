@@ -1,0 +1,108 @@
+"""The spawn spot: level, room for a 1 x 1 m robot, free where known, nearest the preference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scan2terrain.grids.spawn import FOOTPRINT, LEVEL_SLOPE, find_spawn
+from scan2terrain.types import Pose2D
+
+R = 0.05
+
+
+def cell_of(x: float, y: float, origin: Pose2D) -> tuple[int, int]:
+    return math.floor((y - origin.y) / R), math.floor((x - origin.x) / R)
+
+
+def footprint_clear(blocked: np.ndarray, x: float, y: float, origin: Pose2D) -> bool:
+    """No blocked cell overlaps the FOOTPRINT square centred on (x, y)."""
+    rows, cols = np.indices(blocked.shape)
+    cx = origin.x + (cols + 0.5) * R
+    cy = origin.y + (rows + 0.5) * R
+    near = (np.abs(cx - x) < FOOTPRINT / 2 + R / 2) & (np.abs(cy - y) < FOOTPRINT / 2 + R / 2)
+    return not bool((blocked & near).any())
+
+
+def test_origin_in_the_open_is_kept() -> None:
+    origin = Pose2D(-5.0, -5.0)
+    h = np.zeros((200, 200))
+    s = find_spawn(h, R, origin)
+    assert (s.x, s.y, s.z, s.yaw) == pytest.approx((0.025, 0.025, 0.0, 0.0))
+    assert "map origin" in s.why
+
+
+def test_a_wall_at_the_origin_moves_the_spot_to_the_nearest_room() -> None:
+    origin = Pose2D(-5.0, -5.0)
+    h = np.zeros((200, 200))
+    h[90:110, :] = 2.0  # a 1 m thick wall across the map through the origin
+    ground = h == 0
+    s = find_spawn(h, R, origin, ground=ground)
+    assert footprint_clear(~ground, s.x, s.y, origin)
+    assert s.z == 0.0
+    # Nearest: just clear of the wall's face (0.5 m from the origin) by half the footprint.
+    assert abs(s.y) == pytest.approx(0.5 + FOOTPRINT / 2 + R / 2, abs=R)
+
+
+def test_known_free_space_is_preferred_to_unknown_floor() -> None:
+    origin = Pose2D(-5.0, -5.0)
+    h = np.zeros((200, 200))
+    free = np.zeros(h.shape, dtype=bool)
+    free[150:190, 150:190] = True  # known free only far from the origin
+    s = find_spawn(h, R, origin, free=free)
+    r, c = cell_of(s.x, s.y, origin)
+    assert free[r, c] and footprint_clear(~free, s.x, s.y, origin)
+    assert "free" in s.why
+
+
+def test_preferred_point_and_yaw_are_used() -> None:
+    origin = Pose2D(0.0, 0.0)
+    h = np.zeros((200, 200))
+    s = find_spawn(h, R, origin, preferred=(3.0, 4.0), yaw=1.25, why="from the recorded start")
+    assert (s.x, s.y, s.yaw) == pytest.approx((3.025, 4.025, 1.25))
+    assert s.why.startswith("from the recorded start")
+
+
+def test_origin_off_the_map_uses_its_centre() -> None:
+    origin = Pose2D(100.0, 50.0)
+    s = find_spawn(np.zeros((100, 60)), R, origin)
+    assert (s.x, s.y) == pytest.approx((101.525, 52.525))
+    assert "centre" in s.why
+
+
+def test_slopes_are_avoided_and_z_is_the_highest_ground_under_the_footprint() -> None:
+    """Terrain: a 20 degree ramp around the origin and a flat terrace at 3 m beside it."""
+    origin = Pose2D(-5.0, -5.0)
+    _, cols = np.indices((200, 200))
+    x = origin.x + (cols + 0.5) * R
+    h = np.clip(np.tan(np.radians(20)) * (x + 5.0), 0, 3.0)  # flat at 3 m from x = 3.24
+    s = find_spawn(h, R, origin)
+    r, c = cell_of(s.x, s.y, origin)
+    half = round(FOOTPRINT / 2 / R)  # the cells that overlap the footprint square
+    under = h[r - half : r + half + 1, c - half : c + half + 1]
+    run = (2 * half + 1) * R
+    assert under.max() - under.min() <= LEVEL_SLOPE * run + 1e-9  # level: rise over run
+    assert s.x > 3.24 and s.z == pytest.approx(3.0)  # on the terrace, not the ramp
+
+
+def test_rotated_grid() -> None:
+    """A grid turned 90 degrees: the spot is found in map coordinates all the same."""
+    origin = Pose2D(5.0, -5.0, math.pi / 2)
+    h = np.zeros((200, 200))
+    s = find_spawn(h, R, origin)
+    assert (s.x, s.y) == pytest.approx((-0.025, 0.025), abs=1e-9)
+
+
+def test_no_level_room_anywhere_gives_the_flattest_spot() -> None:
+    h = np.random.default_rng(3).uniform(0, 1, (60, 60))
+    s = find_spawn(h, R, Pose2D(-1.5, -1.5))
+    assert "flattest" in s.why and math.isfinite(s.z)
+
+
+def test_tiny_grid_and_bad_input() -> None:
+    s = find_spawn(np.zeros((2, 3)), R, Pose2D(0, 0))
+    assert math.isfinite(s.x) and s.z == 0.0
+    with pytest.raises(ValueError, match="non-empty 2D"):
+        find_spawn(np.zeros((0, 3)), R, Pose2D(0, 0))
