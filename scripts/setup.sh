@@ -2,7 +2,8 @@
 # Creates .venv (Python >= 3.10) and installs scan2terrain into it, editable.
 #   bash scripts/setup.sh          runtime dependencies only
 #   bash scripts/setup.sh test     plus the test tools, and the Debian packages that hold Gazebo's
-#                                  own code (SDFormat, gz-common) used by the integration tests
+#                                  own code (SDFormat, gz-common, gz-physics with its dartsim
+#                                  plugin and heightmaps) used by the integration tests
 set -euo pipefail
 cd "$(dirname "$0")/.."
 extra="${1:-}"
@@ -32,12 +33,13 @@ fi
 if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then apt_install libusb-1.0-0; fi
 if [ "$extra" = "test" ]; then
   need=()
-  for pc in sdformat12 ignition-common4-graphics; do
+  for pc in sdformat12 ignition-common4-graphics ignition-physics5-heightmap ignition-physics5-mesh; do
     pkg-config --exists "$pc" 2>/dev/null || need+=(x)
   done
   command -v edit_octree >/dev/null || need+=(x)
   if [ "${#need[@]}" -gt 0 ] || ! command -v g++ >/dev/null; then
-    apt_install libsdformat-dev libignition-common-graphics-dev pkg-config g++ octomap-tools
+    apt_install libsdformat-dev libignition-common-graphics-dev libignition-physics-dev \
+      libignition-physics-heightmap-dev pkg-config g++ octomap-tools
   fi
   .venv/bin/python -m pip install -q -e ".[test]"
 else
