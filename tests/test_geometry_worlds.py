@@ -28,6 +28,7 @@ from scan2terrain import pipeline
 from scan2terrain.cli import main
 from scan2terrain.config import load_config
 from scan2terrain.exporters.outlines import Polygon, rasterize
+from scan2terrain.exporters.sdf import GROUND_MARGIN
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid, Pose2D
 from tests.conftest import MAPS, ROOT, write_map
@@ -176,11 +177,17 @@ def check_walls(
         occupied = grid.data == 100
         ground = [s for s in shapes if s.name.startswith("ground_")]
         assert sorted(s.kind for s in ground) == ["collision", "visual"]
+        extent = (grid.shape[1] * grid.resolution, grid.shape[0] * grid.resolution)
         for g in ground:
-            assert g.type == "plane" and g.normal == pytest.approx((0, 0, 1))
-            assert g.size == pytest.approx(
-                (grid.shape[1] * grid.resolution, grid.shape[0] * grid.resolution)
-            )
+            if g.kind == "visual":
+                assert g.type == "plane" and g.normal == pytest.approx((0, 0, 1))
+                assert g.size == pytest.approx(extent)
+            else:  # a slab with its top at z = 0, wider than the grid (not a 2100 m cube)
+                assert g.type == "box" and g.size is not None
+                assert g.size == pytest.approx(
+                    (extent[0] + 2 * GROUND_MARGIN, extent[1] + 2 * GROUND_MARGIN, 1.0)
+                )
+                assert g.pose[2] == pytest.approx(-g.size[2] / 2)
         walls = [s for s in shapes if not s.name.startswith("ground_")]
         collisions = [s for s in walls if s.kind == "collision"]
         visuals = [s for s in walls if s.kind == "visual"]
@@ -341,18 +348,24 @@ def test_cli_reports_walls(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert "Classic cannot move" not in text
 
 
-def test_empty_map_mesh_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("geometry", ["mesh", "boxes", "polylines"])
+def test_map_without_walls_is_a_ground_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], geometry: str
+) -> None:
+    """No wall cell: a world of the ground alone (an empty room is a world), parsed strictly."""
     pixels = np.full((20, 20), 254, dtype=np.uint8)
     pixels[5:8, 5:8] = 205
     yaml_path = write_map(tmp_path / "m", pixels)
-    out = tmp_path / "out" / "w"
-    code = main(["map2world", str(yaml_path), "-o", str(out), "--geometry", "mesh"])
-    err = capsys.readouterr().err
-    assert code == 2
-    assert err.count("\n") == 1 and err.startswith("scan2terrain: error: ") and "mesh" in err
-    assert str(yaml_path) in err
-    assert not out.exists()
-    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    out = tmp_path / "w"
+    code = main(["map2world", str(yaml_path), "-o", str(out), "--geometry", geometry])
+    assert code == 0, capsys.readouterr().err
+    for world in ("world_gz.sdf", "world_classic.world"):
+        _, shapes = probe_shapes(out / world, [out / "models"], tmp_path / world)
+        assert sorted((s.name, s.type) for s in shapes) == [
+            ("ground_collision", "box"),
+            ("ground_visual", "plane"),
+        ]
+    assert not list((out / "models").glob("*/meshes"))
 
 
 @pytest.mark.parametrize(

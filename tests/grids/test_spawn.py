@@ -106,3 +106,15 @@ def test_tiny_grid_and_bad_input() -> None:
     assert math.isfinite(s.x) and s.z == 0.0
     with pytest.raises(ValueError, match="non-empty 2D"):
         find_spawn(np.zeros((0, 3)), R, Pose2D(0, 0))
+
+
+def test_coarse_cells_take_the_surface_under_the_footprint() -> None:
+    """A 30 m DEM: z is the bilinear ground under the 1.5 m footprint, not the highest sample
+    of the neighbouring cells 30 m away."""
+    r = 30.0
+    _, cols = np.indices((9, 9))
+    h = cols * 0.5  # rises 0.5 m a cell: 1 degree, level enough
+    s = find_spawn(h.astype(np.float64), r, Pose2D(-135.0, -135.0))
+    # At the centre cell (col 4, x = 0), the footprint reaches 0.75 m = 0.025 cells east.
+    assert (s.x, s.y) == pytest.approx((0.0, 0.0))
+    assert s.z == pytest.approx(4 * 0.5 + 0.5 * 0.75 / r)

@@ -234,13 +234,18 @@ MESH_STEM = "walls"
 WALL_RGB = (0.55, 0.5, 0.45)
 GROUND_RGB = (0.8, 0.8, 0.78)
 
+#: The walls' ground slab: metres thick (top at z = 0) and beyond the grid on every side.
+GROUND_THICKNESS = 1.0
+GROUND_MARGIN = 10.0
+
 
 @dataclass(frozen=True)
 class Ground:
-    """The floor under the walls: a plane over the grid, in the map (= world) frame.
+    """The floor under the walls, over the grid, in the map (= world) frame.
 
-    ``centre`` (metres) and ``yaw`` (radians) place the plane, ``size`` (metres) is its extent
-    (the grid's); Gazebo's plane collision is infinite, the size only bounds the visual.
+    ``centre`` (metres) and ``yaw`` (radians) place it, ``size`` (metres) is the grid's extent:
+    the visual is a plane that size, the collision a ``GROUND_THICKNESS`` slab whose top is
+    z = 0, ``GROUND_MARGIN`` wider all round (a robot driven off the map's edge stays up).
     """
 
     centre: tuple[float, float]
@@ -266,15 +271,21 @@ def _walls_model(
     model = _sub(sdf, "model", name=p.model_name)
     _sub(model, "static", "true")
     link = _sub(model, "link", name="walls_link")
-    pose = _fmt(ground.centre[0], ground.centre[1], 0, 0, 0, ground.yaw)
-    for kind in ("collision", "visual"):
-        el = _sub(link, kind, name=f"ground_{kind}")
-        _sub(el, "pose", pose)
-        plane = _sub(_sub(el, "geometry"), "plane")
-        _sub(plane, "normal", "0 0 1")
-        _sub(plane, "size", _fmt(*ground.size))
-        if kind == "visual":
-            _material(el, GROUND_RGB)
+    cx, cy = ground.centre
+    # Collision: a slab whose top is z = 0, GROUND_MARGIN wider than the grid all round. Not a
+    # <plane>: gz-physics' dartsim makes a plane a 2100 m cube (SDFFeatures.cc ConstructPlane),
+    # and Bullet's cylinder-box contacts against it are off by centimetres in places (a wheel
+    # sank 4.4 cm into Willow Garage's floor); against a box the size of the map they are exact.
+    collision = _sub(link, "collision", name="ground_collision")
+    _sub(collision, "pose", _fmt(cx, cy, -GROUND_THICKNESS / 2, 0, 0, ground.yaw))
+    slab = (*(side + 2 * GROUND_MARGIN for side in ground.size), GROUND_THICKNESS)
+    _sub(_sub(_sub(collision, "geometry"), "box"), "size", _fmt(*slab))
+    visual = _sub(link, "visual", name="ground_visual")
+    _sub(visual, "pose", _fmt(cx, cy, 0, 0, 0, ground.yaw))
+    plane = _sub(_sub(visual, "geometry"), "plane")
+    _sub(plane, "normal", "0 0 1")
+    _sub(plane, "size", _fmt(*ground.size))
+    _material(visual, GROUND_RGB)
     return sdf, link
 
 

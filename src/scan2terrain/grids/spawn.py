@@ -2,7 +2,7 @@
 
 The ground is the world's own height field in the map frame (walls at their height, floor at
 its own): a spot is *level* when the ground under a square of ``FOOTPRINT`` metres a side (room
-for a 1 x 1 m robot at any heading, with a margin) varies by no more than ``LEVEL_SLOPE`` across
+for a 1 x 1 m robot at any heading, with a margin) rises by no more than ``LEVEL_SLOPE`` across
 it, and *free* when, where the caller knows it, every cell under it is known free space. The
 chosen spot is the free, level cell nearest the preferred point, else the level one nearest,
 else the most level one; ``z`` is the highest ground under the footprint.
@@ -24,9 +24,9 @@ from scan2terrain.types import Pose2D, Spawn
 #: Side of the square that must be level (metres): a 1 x 1 m robot turned any way fits in a
 #: circle of radius 0.71 m; 1.5 m leaves it 4 cm each side.
 FOOTPRINT = 1.5
-#: Largest ground slope across the footprint, as rise over run (tan 3 degrees), and the smallest
+#: Largest ground slope across the footprint, as rise over run (tan 2 degrees), and the smallest
 #: rise always accepted (metres): heightmap quantisation and sensor noise on a flat floor.
-LEVEL_SLOPE = math.tan(math.radians(3.0))
+LEVEL_SLOPE = math.tan(math.radians(2.0))
 LEVEL_RISE = 0.02
 #: The first search looks this far (metres) from the preferred point.
 NEAR = 25.0
@@ -74,6 +74,8 @@ def find_spawn(
         )
         if _RANK[better[2]] < _RANK[how]:
             (pr, pc), z, how = better
+    if r > FOOTPRINT / 4:  # coarse cells: the surface between samples, not their maximum
+        z = _surface_max(h, r, pr, pc)
     x, y = origin.transform(np.array((pc + 0.5) * r), np.array((pr + 0.5) * r))
     where = f"{why}: " if why else ""
     return Spawn(float(x), float(y), z, float(yaw), f"{where}{_HOW[how]}")
@@ -154,3 +156,19 @@ def _search(
     i = int(np.argmin(np.where(best, dist2, np.iinfo(np.int64).max)))
     pr, pc = divmod(i, h.shape[1])
     return (pr + r0, pc + c0), float(top[pr, pc]), "flattest"
+
+
+def _surface_max(h: NDArray[np.float64], r: float, row: int, col: int) -> float:
+    """The highest point of the ground (bilinear between cell-centre samples, as Gazebo's
+    triangles are between them) under the footprint square centred on cell (row, col)."""
+    half = FOOTPRINT / 2 / r  # in cells
+    offsets = np.linspace(-half, half, 9)
+    fr = np.clip(row + offsets[:, None] + 0 * offsets[None, :], 0, h.shape[0] - 1)
+    fc = np.clip(col + offsets[None, :] + 0 * offsets[:, None], 0, h.shape[1] - 1)
+    r0 = np.minimum(np.floor(fr).astype(np.intp), max(h.shape[0] - 2, 0))
+    c0 = np.minimum(np.floor(fc).astype(np.intp), max(h.shape[1] - 2, 0))
+    r1 = np.minimum(r0 + 1, h.shape[0] - 1)
+    c1 = np.minimum(c0 + 1, h.shape[1] - 1)
+    a, b = fr - r0, fc - c0
+    z = (h[r0, c0] * (1 - b) + h[r0, c1] * b) * (1 - a) + (h[r1, c0] * (1 - b) + h[r1, c1] * b) * a
+    return float(z.max())
