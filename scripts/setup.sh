@@ -12,7 +12,13 @@ as_root() { if [ "$(id -u)" = 0 ]; then "$@"; elif command -v sudo >/dev/null; t
   echo "setup: need root to run: $*" >&2; return 1; fi; }
 apt_install() {
   export DEBIAN_FRONTEND=noninteractive
-  as_root apt-get update -qq && as_root apt-get install -y -qq "$@" >/dev/null
+  # Wait (up to 10 min) for another apt/dpkg to finish instead of failing on its lock.
+  local lock=(-o DPkg::Lock::Timeout=600)
+  if ! as_root apt-get "${lock[@]}" update -qq || \
+     ! as_root apt-get "${lock[@]}" install -y -qq "$@" >/dev/null; then
+    echo "setup: apt-get could not install: $*" >&2
+    return 1
+  fi
 }
 
 PY="${PYTHON:-python3}"
@@ -30,7 +36,8 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 # Open3D's wheel links libusb even when headless.
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then apt_install libusb-1.0-0; fi
+# grep reads all of ldconfig's output (no -q): an early exit would fail the pipe under pipefail.
+if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then apt_install libusb-1.0-0; fi
 if [ "$extra" = "test" ]; then
   need=()
   for pc in sdformat12 ignition-common4-graphics ignition-physics5-heightmap ignition-physics5-mesh; do
