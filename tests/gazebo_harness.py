@@ -5,8 +5,8 @@ The C++ program ``tests/gazebo/heightmap_probe.cpp`` parses a world strictly wit
 plugin does (``ImageHeightmap::FillHeightMap``). This module compiles it once per
 source revision, runs it, and turns its JSON into :class:`HeightmapProbe` objects
 (:func:`probe_world`), or, for worlds of walls, :class:`ShapeProbe` objects for every other
-geometry: boxes, planes, polylines, and meshes as gz-common's mesh loader reads them
-(:func:`probe_shapes`).
+geometry: boxes, planes, meshes as gz-common's mesh loader reads them, and polylines as
+gz-common extrudes them for gz-sim (:func:`probe_shapes`).
 
 :func:`terrain_height` then answers "how high is the ground at world (x, y)?" as each
 simulator lays the field out. The placement rules, with the upstream files they come
@@ -109,6 +109,14 @@ class ShapeProbe:
     gz-common 4's ``MeshManager::Load`` returns them, ``mesh_min``/``mesh_max``), ``polyline``
     (``polylines``: one ``(height, points (N, 2))`` per ``<polyline>`` element of the geometry,
     read from the element tree: SDFormat 12.3 has no Polyline class) or ``other``.
+
+    Polylines are also extruded as gz-sim builds them (gz-common 4's
+    ``MeshManager::CreateExtrudedPolyline`` on every ``<polyline>``'s points, at the first one's
+    height): ``extrusion`` is ``ok`` (``triangles`` (T, 3, 3) float64 in the geometry's frame,
+    ``mesh_min``/``mesh_max``), ``failed`` (gz-common made no mesh: gz-sim has no collision or
+    visual for it), ``crashed`` (the triangulation killed the process; ``extrusion_signal``) or
+    ``timeout``; ``skipped`` with ``HEIGHTMAP_PROBE_EXTRUDE=0``. The probe extrudes in a forked
+    child, so a crash is reported for its geometry and the others are still extruded.
     """
 
     model: str
@@ -128,6 +136,8 @@ class ShapeProbe:
     mesh_min: tuple[float, float, float] | None = None
     mesh_max: tuple[float, float, float] | None = None
     triangles: np.ndarray | None = field(default=None, repr=False)
+    extrusion: str | None = None
+    extrusion_signal: int | None = None
 
 
 # --------------------------------------------------------------------------- build
@@ -137,49 +147,57 @@ def _run(cmd: list[str]) -> subprocess.CompletedProcess[str]:
     return subprocess.run(cmd, capture_output=True, text=True, check=False)
 
 
-def _missing(what: str) -> RuntimeError:
-    return RuntimeError(f"{what}; install the Gazebo test dependencies: {INSTALL_HINT}")
+def _missing(what: str, install_hint: str = INSTALL_HINT) -> RuntimeError:
+    return RuntimeError(f"{what}; install the Gazebo test dependencies: {install_hint}")
 
 
-def probe_binary() -> Path:
-    """Compile ``heightmap_probe.cpp`` (once per source sha256) and return its path.
+def probe_binary(
+    source_path: Path = PROBE_SOURCE,
+    pkg_modules: tuple[str, ...] = PKG_MODULES,
+    install_hint: str = INSTALL_HINT,
+) -> Path:
+    """Compile a probe (default ``heightmap_probe.cpp``) once per source sha256; its path.
 
-    The binary lives in ``tests/.build/heightmap_probe-<sha256[:16]>/`` (git-ignored).
-    A file lock makes concurrent pytest workers build it only once.
+    The binary ``<stem>`` lives in ``tests/.build/<stem>-<sha256[:16]>/`` (git-ignored),
+    built with ``g++ -std=c++17 -O1`` against the ``pkg_modules`` pkg-config modules
+    (``install_hint`` names the Debian packages that provide them). A file lock makes
+    concurrent pytest workers build it only once. ``tests/physics_harness.py`` builds
+    ``physics_probe.cpp`` with this same routine.
     """
-    source = PROBE_SOURCE.read_bytes()
+    stem = source_path.stem
+    source = source_path.read_bytes()
     digest = hashlib.sha256(source).hexdigest()[:16]
-    out_dir = BUILD_ROOT / f"heightmap_probe-{digest}"
-    binary = out_dir / "heightmap_probe"
+    out_dir = BUILD_ROOT / f"{stem}-{digest}"
+    binary = out_dir / stem
     if binary.is_file() and os.access(binary, os.X_OK):
         return binary
 
     for tool in ("g++", "pkg-config"):
         if shutil.which(tool) is None:
-            raise _missing(f"`{tool}` not found on PATH")
-    exists = _run(["pkg-config", "--exists", *PKG_MODULES])
+            raise _missing(f"`{tool}` not found on PATH", install_hint)
+    exists = _run(["pkg-config", "--exists", *pkg_modules])
     if exists.returncode != 0:
-        raise _missing(f"pkg-config cannot find {' / '.join(PKG_MODULES)}")
-    flags = _run(["pkg-config", "--cflags", "--libs", *PKG_MODULES])
+        raise _missing(f"pkg-config cannot find {' / '.join(pkg_modules)}", install_hint)
+    flags = _run(["pkg-config", "--cflags", "--libs", *pkg_modules])
     if flags.returncode != 0:
-        raise _missing(f"pkg-config failed: {flags.stderr.strip()}")
+        raise _missing(f"pkg-config failed: {flags.stderr.strip()}", install_hint)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     with (out_dir / ".lock").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if binary.is_file() and os.access(binary, os.X_OK):
             return binary
-        tmp = out_dir / f"heightmap_probe.tmp{os.getpid()}"
+        tmp = out_dir / f"{stem}.tmp{os.getpid()}"
         cmd = [
-            "g++", "-std=c++17", "-O1", "-o", str(tmp), str(PROBE_SOURCE),
+            "g++", "-std=c++17", "-O1", "-o", str(tmp), str(source_path),
             *flags.stdout.split(),
         ]  # fmt: skip
         built = _run(cmd)
         if built.returncode != 0:
             tmp.unlink(missing_ok=True)
             raise RuntimeError(
-                "compiling heightmap_probe failed (are the -dev packages complete? "
-                f"{INSTALL_HINT}):\n{' '.join(cmd)}\n{built.stderr}"
+                f"compiling {stem} failed (are the -dev packages complete? "
+                f"{install_hint}):\n{' '.join(cmd)}\n{built.stderr}"
             )
         tmp.replace(binary)
     return binary
@@ -288,6 +306,15 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
     for line in entry.get("polylines", []):
         points = np.asarray(line["points"], dtype=np.float64).reshape(-1, 2)
         shape.polylines.append((float(line["height"]), points))
+    if shape.type == "polyline":
+        shape.extrusion = str(entry["extrusion"])
+        if shape.extrusion in ("crashed", "timeout"):
+            shape.extrusion_signal = int(entry["extrusion_signal"])
+        if shape.extrusion == "ok":
+            shape.mesh_min = _tuple(entry["mesh_min"])  # type: ignore[assignment]
+            shape.mesh_max = _tuple(entry["mesh_max"])  # type: ignore[assignment]
+            raw = np.fromfile(entry["triangles_file"], dtype="<f8")
+            shape.triangles = raw.reshape(-1, 3, 3)
     return shape
 
 
