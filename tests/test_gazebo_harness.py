@@ -7,6 +7,7 @@ Tiny worlds and images are written by hand into tmp_path; SDFormat 12 and gz-com
 from __future__ import annotations
 
 import math
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,9 @@ from tests.gazebo_harness import (
     INSTALL_HINT,
     HeightmapProbe,
     SdfParseError,
+    ShapeProbe,
     probe_binary,
+    probe_shapes,
     probe_world,
     terrain_height,
     vertex_world_xy,
@@ -390,6 +393,95 @@ def test_unresolvable_include_is_an_error(tmp_path: Path) -> None:
     world, _ = _classic_setup(tmp_path)
     with pytest.raises(SdfParseError):
         probe_world(world, [tmp_path / "nowhere"], tmp_path / "out")
+
+
+# --------------------------------------------------------------------------- polylines
+
+# An L of four 0.05 m cells from Willow Garage's map, as decimal map coordinates; the same L on
+# a binary grid (0.25 m cells at the origin: every sum of coordinates exact).
+L_DECIMAL = [(49.5, 3.55), (49.65, 3.55), (49.65, 3.6), (49.55, 3.6), (49.55, 3.65), (49.5, 3.65)]
+L_BINARY = [(0.0, 0.0), (0.75, 0.0), (0.75, 0.25), (0.25, 0.25), (0.25, 0.5), (0.0, 0.5)]
+
+
+def _polyline_model(tmp_path: Path, shapes: dict[str, list[list[tuple[float, float]]]]) -> Path:
+    """A model file with one collision per entry: its rings as <polyline> elements, 2 m high."""
+    parts = []
+    for name, rings in shapes.items():
+        lines = "".join(
+            "<polyline>"
+            + "".join(f"<point>{x!r} {y!r}</point>" for x, y in ring)
+            + "<height>2</height></polyline>"
+            for ring in rings
+        )
+        parts.append(f'<collision name="{name}"><geometry>{lines}</geometry></collision>')
+    return _write(
+        tmp_path / "polylines.sdf",
+        '<?xml version="1.0"?><sdf version="1.9"><model name="m"><static>true</static>'
+        f'<link name="l">{"".join(parts)}</link></model></sdf>',
+    )
+
+
+def _cap_area(shape: ShapeProbe, z: float) -> float:
+    assert shape.triangles is not None
+    cap = shape.triangles[np.all(shape.triangles[..., 2] == z, axis=1)][..., :2]
+    a, b = cap[:, 1] - cap[:, 0], cap[:, 2] - cap[:, 0]
+    return float(np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum() / 2)
+
+
+def test_polylines_are_extruded_as_gz_sim_builds_them(tmp_path: Path) -> None:
+    """gz-common's CreateExtrudedPolyline: caps and walls from z = 0 to the height, holes open."""
+    square = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
+    hole = [(0.5, 0.5), (0.5, 1.5), (1.5, 1.5), (1.5, 0.5)]
+    world = _polyline_model(tmp_path, {"ring": [square, hole], "l": [L_BINARY]})
+    _, shapes = probe_shapes(world, [], tmp_path / "out")
+    ring, ell = shapes
+    for s in shapes:
+        assert s.type == "polyline" and s.extrusion == "ok" and s.extrusion_signal is None
+        assert s.mesh_min is not None and s.mesh_min[2] == 0.0
+        assert s.mesh_max is not None and s.mesh_max[2] == 2.0
+    assert _cap_area(ring, 0.0) == _cap_area(ring, 2.0) == pytest.approx(3.0)
+    assert _cap_area(ell, 0.0) == _cap_area(ell, 2.0) == pytest.approx(0.25)
+    assert [pts.tolist() for _, pts in ring.polylines] == [
+        [list(p) for p in square],
+        [list(p) for p in hole],
+    ]
+
+
+def test_gz_common_hole_test_drops_a_triangle_of_a_decimal_outline(tmp_path: Path) -> None:
+    """gz-common 4's even-odd test counts both edges at a vertex its centroid ray meets when
+    (y1 + y2) - min(y1, y2) rounds above max(y1, y2): the decimal L fails to extrude ("Unable
+    to extrude mesh. Triangulation failed"); on a binary grid the same shape builds."""
+    world = _polyline_model(tmp_path, {"decimal": [L_DECIMAL], "binary": [L_BINARY]})
+    _, (decimal, binary) = probe_shapes(world, [], tmp_path / "out")
+    assert decimal.extrusion == "failed" and decimal.triangles is None
+    assert binary.extrusion == "ok"
+
+
+def test_a_crash_in_the_extrusion_is_reported_for_its_geometry(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """GTS can kill the process (stack overflow, assertion): the probe extrudes in a forked
+    child, reports the crash for that geometry, and extrudes the others."""
+    world = _polyline_model(tmp_path, {n: [L_BINARY] for n in ("a", "b", "c")})
+    monkeypatch.setenv("HEIGHTMAP_PROBE_FAULT", "crash:b")
+    _, shapes = probe_shapes(world, [], tmp_path / "out")
+    assert [(s.name, s.extrusion, s.extrusion_signal) for s in shapes] == [
+        ("a", "ok", None),
+        ("b", "crashed", signal.SIGSEGV),
+        ("c", "ok", None),
+    ]
+    assert shapes[2].triangles is not None and _cap_area(shapes[2], 2.0) == pytest.approx(0.25)
+
+
+def test_a_hung_extrusion_times_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    world = _polyline_model(tmp_path, {n: [L_BINARY] for n in ("a", "b")})
+    monkeypatch.setenv("HEIGHTMAP_PROBE_FAULT", "hang:a")
+    monkeypatch.setenv("HEIGHTMAP_PROBE_EXTRUDE_TIMEOUT", "1")
+    _, shapes = probe_shapes(world, [], tmp_path / "out")
+    assert [(s.extrusion, s.extrusion_signal) for s in shapes] == [
+        ("timeout", signal.SIGALRM),
+        ("ok", None),
+    ]
 
 
 # --------------------------------------------------------------------------- build

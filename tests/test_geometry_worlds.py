@@ -6,7 +6,10 @@ loader gz-sim uses). From what the probe returns, not from our own data:
 
 * boxes: the collision boxes, painted back onto the grid one by one (world pose -> grid cells);
 * polylines: each collision's <polyline> elements as one polygon with holes, rasterised with
-  ``outlines.rasterize`` (even-odd, like Gazebo's triangulation);
+  ``outlines.rasterize`` (even-odd, like Gazebo's triangulation); and every polyline geometry
+  (collisions and visuals) extruded by gz-common's ``MeshManager::CreateExtrudedPolyline`` as
+  gz-sim builds it: none may fail or crash, and the cell centres inside the extrusions' top caps,
+  and inside their bottom caps, must be the wall cells, each covered once;
 * mesh: the STL (collision) and COLLADA (visual) triangles as gz-common loaded them: a closed,
   consistently oriented surface between z = 0 and the wall height, whose volume is the wall
   cells' volume and whose top face's outline, scan-line filled, is the wall cells;
@@ -83,6 +86,54 @@ def polyline_polygons(shapes: list[ShapeProbe]) -> list[Polygon]:
         assert all(len(ring) >= 4 for ring in rings)
         polygons.append(Polygon(rings[0], tuple(rings[1:])))
     return polygons
+
+
+def paint_extrusions(shapes: list[ShapeProbe], grid: OccupancyGrid) -> list[np.ndarray]:
+    """How many of gz-common's extruded polylines cover each cell centre of ``grid``: one count
+    per cap (top, bottom), from the flat triangles at z = H and z = 0 of every extrusion.
+
+    Every geometry must have extruded ("ok"); a failure or crash fails here, by name. A centre
+    on an edge shared by two triangles (a diagonal through a cell) is tested a millionth of a
+    cell off it, along a direction no triangle edge has, so it counts once.
+    """
+    broken = [
+        f"{s.name}: {s.extrusion} (signal {s.extrusion_signal})"
+        for s in shapes
+        if s.extrusion != "ok"
+    ]
+    assert not broken, f"gz-common could not extrude {len(broken)} polylines: {broken[:20]}"
+    tri = np.concatenate([s.triangles for s in shapes if s.triangles is not None])
+    z = tri[..., 2]
+    assert np.all(np.isclose(z, 0.0, atol=1e-9) | np.isclose(z, H, atol=1e-9))
+    counts = []
+    for level in (H, 0.0):
+        cap = tri[np.all(np.isclose(z, level, atol=1e-9), axis=1)]
+        u, v = to_grid(grid, cap[..., 0], cap[..., 1])  # (T, 3) each, cells
+        # Candidates: the centres in each triangle's bounding box and one cell around it.
+        c0 = np.clip(np.floor(u.min(axis=1) - 0.5), 0, grid.shape[1]).astype(np.int64)
+        c1 = np.clip(np.ceil(u.max(axis=1) - 0.5) + 1, 0, grid.shape[1]).astype(np.int64)
+        r0 = np.clip(np.floor(v.min(axis=1) - 0.5), 0, grid.shape[0]).astype(np.int64)
+        r1 = np.clip(np.ceil(v.max(axis=1) - 0.5) + 1, 0, grid.shape[0]).astype(np.int64)
+        nc, nr = np.maximum(c1 - c0, 0), np.maximum(r1 - r0, 0)
+        size = nc * nr
+        t = np.repeat(np.arange(len(cap)), size)
+        k = np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size)
+        col = c0[t] + k % np.maximum(nc[t], 1)
+        row = r0[t] + k // np.maximum(nc[t], 1)
+        pu = col + 0.5 + 1e-6
+        pv = row + 0.5 + 1e-6 * math.sqrt(2.0)
+        side = [
+            (u[t, (i + 1) % 3] - u[t, i]) * (pv - v[t, i])
+            - (v[t, (i + 1) % 3] - v[t, i]) * (pu - u[t, i])
+            for i in range(3)
+        ]
+        inside = ((side[0] > 0) & (side[1] > 0) & (side[2] > 0)) | (
+            (side[0] < 0) & (side[1] < 0) & (side[2] < 0)
+        )
+        painted = np.zeros(grid.shape, dtype=np.int64)
+        np.add.at(painted, (row[inside], col[inside]), 1)
+        counts.append(painted)
+    return counts
 
 
 def scanline_fill(segments: np.ndarray, grid: OccupancyGrid) -> np.ndarray:
@@ -207,6 +258,10 @@ def check_walls(
             # No two polygons overlap: their areas add up to the wall cells' area.
             area = sum(p.area() for p in polygons)
             assert area == pytest.approx(occupied.sum() * grid.resolution**2, rel=1e-9)
+            # What gz-sim builds: gz-common extrudes every one, to exactly the wall cells.
+            paint_extrusions(visuals, grid)
+            for painted in paint_extrusions(collisions, grid):
+                assert np.array_equal(painted, occupied.astype(np.int64))
         else:
             ((col,), (vis,)) = collisions, visuals
             assert col.uri is not None and col.uri.endswith(".stl") and col.mesh_loaded
@@ -236,6 +291,39 @@ def test_real_map_walls_are_the_occupied_cells(tmp_path: Path, name: str, geomet
         assert (result.out / rel).is_file()
     cfg = load_config(result.out / "scan2terrain.yaml")
     assert cfg.world.geometry == geometry
+
+
+@pytest.mark.parametrize(
+    ("name", "overrides"),
+    [(name, {"filter.kind": "paper"}) for name in sorted(MAPS)]
+    + [("willow", {"world.simplify": 0.1})],
+    ids=[f"{name}-paper" for name in sorted(MAPS)] + ["willow-simplify"],
+)
+def test_real_map_polylines_build_in_gz_common(
+    tmp_path: Path, name: str, overrides: dict[str, object]
+) -> None:
+    """gz-common 4 (gz-sim Fortress; Garden/Harmonic's gz-common 5 and Classic 11 share the
+    code) triangulates every polyline geometry of the real maps with the paper's filter too,
+    and straightened: no geometry fails or crashes, the extrusions are exactly the wall cells.
+    (The default filter: test_real_map_walls_are_the_occupied_cells.) gz-sim worlds only: the
+    Classic world holds the same points."""
+    result = build(
+        MAPS[name], tmp_path / "w", "polylines", **overrides, **{"world.simulator": "gz"}
+    )
+    ((w,),) = (result.worlds,)
+    assert w.placement.simulator == "gz" and w.map_yaml is not None
+    _, grid = read_map_yaml(w.map_yaml)
+    occupied = grid.data == 100
+    _, shapes = probe_shapes(w.world, [w.models], tmp_path / "probe")
+    walls = [s for s in shapes if not s.name.startswith("ground_")]
+    collisions = [s for s in walls if s.kind == "collision"]
+    visuals = [s for s in walls if s.kind == "visual"]
+    assert len(collisions) == len(visuals) > 0
+    polygons = polyline_polygons(collisions)
+    assert np.array_equal(rasterize(polygons, grid.shape, grid.resolution, grid.origin), occupied)
+    paint_extrusions(visuals, grid)
+    for painted in paint_extrusions(collisions, grid):
+        assert np.array_equal(painted, occupied.astype(np.int64))
 
 
 def test_real_map_walls_with_unfiltered_source(tmp_path: Path) -> None:
@@ -299,6 +387,8 @@ def test_simplified_outlines_cover_the_same_cells(tmp_path: Path, geometry: str)
         if geometry == "polylines":
             got = rasterize(polyline_polygons(walls), grid.shape, grid.resolution, grid.origin)
             sizes.append(sum(len(pts) for s in walls for _, pts in s.polylines))
+            for painted in paint_extrusions(walls, grid):
+                assert np.array_equal(painted, occupied.astype(np.int64))
         else:
             ((col,),) = (walls,)
             assert col.triangles is not None

@@ -15,6 +15,7 @@ wider or taller than ``output.map_max_side`` cells as map tiles, each with its o
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import re
@@ -52,7 +53,7 @@ from scan2terrain.grids import (
     upsample,
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
-from scan2terrain.grids.spawn import find_spawn
+from scan2terrain.grids.spawn import FOOTPRINT, find_spawn
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D, Spawn
 
 if TYPE_CHECKING:
@@ -616,6 +617,13 @@ def _walls(
     holes = sum(len(poly.holes) for poly in polygons)
     outline = f"{len(polygons)} outline polygons with {holes} holes{simplified}"
     if kind == "polylines":
+        if resolution < sdf.POLYLINE_MIN_CELL:
+            raise InputError(
+                source,
+                f"--geometry polylines needs cells of at least {sdf.POLYLINE_MIN_CELL} m"
+                f" (gz-common merges polyline points closer than 0.1 mm), not {resolution!r} m:"
+                " use mesh or boxes",
+            )
         rings = [poly.rings() for poly in polygons]
         return _Walls(
             lambda p, comment: sdf.polylines_model_sdf(p, ground, rings, comment=comment),
@@ -678,7 +686,6 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     the lowest height (gz-common's own DEM loader also pads with the lowest height). Filters:
     the plain median (``filter.size``) when filtering is on.
     """
-    import dataclasses
 
     from scan2terrain.errors import ConfigError
     from scan2terrain.grids import canvas as grid_canvas
@@ -958,6 +965,8 @@ def _write(
             comment_extra=comment_extra,
             spawn=spawn,
         )
+    # z where Gazebo puts the ground: the image's quantised heights, not the grid's.
+    spawn = dataclasses.replace(spawn, z=hm.ground_max(spawn.x, spawn.y, FOOTPRINT / 2))
     png = hm.png()
     base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)

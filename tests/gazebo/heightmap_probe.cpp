@@ -36,7 +36,30 @@
 //   brightest first-channel sample itself (normalised to 0..1 like MaxColor)
 //   and reports "max_elevation_fallback": true.
 //
-// Exit status: 0 ok, 1 SDF parse error, 2 usage / image / I/O error.
+// * Every polyline geometry is also extruded the way gz-sim builds it
+//   (ign-gazebo6 src/systems/physics/Physics.cc for collisions and
+//   src/rendering/SceneManager.cc for visuals): the points of each
+//   <polyline> in order, one vector per <polyline>, then
+//     MeshManager::CreateExtrudedPolyline("POLYLINE_<unique>", polylines,
+//                                         height of the FIRST <polyline>)
+//   and MeshByName(); gz-sim drops the geometry (no collision, no visual)
+//   when that returns nullptr. Reported per geometry as "extrusion": "ok"
+//   (triangles written as for meshes, to OUT_DIR/polyline<index>.f64),
+//   "failed" (no mesh: gz-common logged "Unable to extrude mesh.
+//   Triangulation failed" or similar), "crashed" (the triangulation, GTS,
+//   killed the process; "extrusion_signal" names the signal) or "timeout"
+//   (longer than HEIGHTMAP_PROBE_EXTRUDE_TIMEOUT seconds, default 120).
+//   So that a crash cannot take the probe down, the extrusions run in a
+//   forked child that reports each result through a pipe before starting
+//   the next; when the child dies, the geometry it was extruding is
+//   reported as crashed and a new child carries on with the next one.
+//   HEIGHTMAP_PROBE_EXTRUDE=0 skips the extrusions ("extrusion": "skipped").
+//   For the harness' own tests, HEIGHTMAP_PROBE_FAULT=crash:NAME (or hang:NAME)
+//   makes the child raise SIGSEGV (or wait forever) instead of extruding the
+//   geometry of the collision / visual called NAME.
+//
+// Exit status: 0 ok, 1 SDF parse error, 2 usage / image / I/O error (a failed
+// or crashed extrusion is a result, reported in the JSON, not an error).
 
 #include <sdf/Box.hh>
 #include <sdf/Collision.hh>
@@ -63,8 +86,16 @@
 #include <ignition/math/Pose3.hh>
 #include <ignition/math/Vector3.hh>
 
+#include <sys/resource.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <csignal>
 #include <cstdint>
+#include <cstdlib>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -415,8 +446,56 @@ void ReportHeightmap(const std::string &_model, const std::string &_link,
   g_entries.push_back(o.str());
 }
 
+/// JSON text of each non-heightmap geometry WITHOUT its closing brace; the
+/// extrusion fields of polylines are appended once they are known.
 std::vector<std::string> g_shapes;
 int g_meshIndex = 0;
+
+/// One polyline geometry to extrude: its polylines' points and the height.
+struct ExtrudeJob
+{
+  std::size_t shape;  ///< index in g_shapes
+  std::string name;  ///< the collision / visual name
+  std::string label;  ///< model/link/name, for messages
+  std::vector<std::vector<ignition::math::Vector2d>> polylines;
+  double height;
+};
+std::vector<ExtrudeJob> g_jobs;
+
+/////////////////////////////////////////////////
+/// Every triangle of every submesh, as 9 doubles (3 vertices x xyz).
+std::vector<double> Triangles(const ignition::common::Mesh *_mesh)
+{
+  std::vector<double> xyz;
+  for (unsigned int si = 0; si < _mesh->SubMeshCount(); ++si)
+  {
+    auto sub = _mesh->SubMeshByIndex(si).lock();
+    if (!sub)
+      continue;
+    for (unsigned int k = 0; k + 2 < sub->IndexCount(); k += 3)
+    {
+      for (unsigned int c = 0; c < 3; ++c)
+      {
+        const Vector3d v = sub->Vertex(static_cast<unsigned int>(sub->Index(k + c)));
+        xyz.push_back(v.X());
+        xyz.push_back(v.Y());
+        xyz.push_back(v.Z());
+      }
+    }
+  }
+  return xyz;
+}
+
+/////////////////////////////////////////////////
+/// Write raw little-endian float64 values; false on an I/O error.
+bool WriteDoubles(const fs::path &_path, const std::vector<double> &_values)
+{
+  std::ofstream out(_path, std::ios::binary);
+  out.write(reinterpret_cast<const char *>(_values.data()),
+      static_cast<std::streamsize>(_values.size() * sizeof(double)));
+  out.close();
+  return static_cast<bool>(out);
+}
 
 /////////////////////////////////////////////////
 /// Triangles of a mesh file as gz-common's MeshManager loads it, written to
@@ -431,30 +510,10 @@ std::string LoadMesh(const std::string &_path)
     o << ", \"mesh_loaded\": false";
     return o.str();
   }
-  std::vector<double> xyz;
-  for (unsigned int si = 0; si < mesh->SubMeshCount(); ++si)
-  {
-    auto sub = mesh->SubMeshByIndex(si).lock();
-    if (!sub)
-      continue;
-    for (unsigned int k = 0; k + 2 < sub->IndexCount(); k += 3)
-    {
-      for (unsigned int c = 0; c < 3; ++c)
-      {
-        const Vector3d v = sub->Vertex(static_cast<unsigned int>(sub->Index(k + c)));
-        xyz.push_back(v.X());
-        xyz.push_back(v.Y());
-        xyz.push_back(v.Z());
-      }
-    }
-  }
+  const std::vector<double> xyz = Triangles(mesh);
   const fs::path outPath =
       fs::path(g_outDir) / ("mesh" + std::to_string(g_meshIndex++) + ".f64");
-  std::ofstream out(outPath, std::ios::binary);
-  out.write(reinterpret_cast<const char *>(xyz.data()),
-      static_cast<std::streamsize>(xyz.size() * sizeof(double)));
-  out.close();
-  if (!out)
+  if (!WriteDoubles(outPath, xyz))
   {
     std::cerr << "heightmap_probe: cannot write " << outPath << "\n";
     g_status = 2;
@@ -519,14 +578,23 @@ void ReportShape(const std::string &_model, const std::string &_link,
       {
         // SDFormat 12.3 knows <polyline> only as elements; Gazebo extrudes all
         // the polylines of one geometry together (holes: even-odd).
+        // sdf::Polyline::Points() in gz-sim: the <point> values in order.
         o << ", \"type\": \"polyline\", \"polylines\": [";
+        ExtrudeJob job;
+        job.shape = g_shapes.size();
+        job.name = _name;
+        job.label = _model + "/" + _link + "/" + _name;
         bool firstLine = true;
         for (sdf::ElementPtr line = elem->GetElement("polyline"); line;
              line = line->GetNextElement("polyline"))
         {
+          const double height = line->Get<double>("height");
+          if (firstLine)
+            job.height = height;
           o << (firstLine ? "" : ", ") << "{\"height\": "
-            << Num(line->Get<double>("height")) << ", \"points\": [";
+            << Num(height) << ", \"points\": [";
           firstLine = false;
+          job.polylines.emplace_back();
           bool firstPoint = true;
           if (line->HasElement("point"))
           {
@@ -534,6 +602,7 @@ void ReportShape(const std::string &_model, const std::string &_link,
                  pt = pt->GetNextElement("point"))
             {
               const auto v = pt->Get<ignition::math::Vector2d>();
+              job.polylines.back().push_back(v);
               o << (firstPoint ? "" : ", ") << "[" << Num(v.X()) << ", "
                 << Num(v.Y()) << "]";
               firstPoint = false;
@@ -542,6 +611,7 @@ void ReportShape(const std::string &_model, const std::string &_link,
           o << "]}";
         }
         o << "]";
+        g_jobs.push_back(std::move(job));
       }
       else
       {
@@ -549,8 +619,233 @@ void ReportShape(const std::string &_model, const std::string &_link,
           << static_cast<int>(_geom.Type());
       }
   }
-  o << "}";
   g_shapes.push_back(o.str());
+}
+
+/////////////////////////////////////////////////
+/// What a child reports through the pipe for each extrusion.
+struct ExtrudeRecord
+{
+  uint64_t job;
+  int32_t ok;  ///< 1: MeshByName found the mesh, 0: it did not
+  int32_t written;  ///< 1: triangles file written
+  uint64_t triangles;
+  uint64_t vertices;
+  double min[3];
+  double max[3];
+};
+
+/// Result of one extrusion, for the JSON.
+struct ExtrudeResult
+{
+  std::string status = "crashed";
+  int signal = 0;
+  int exitCode = -1;
+  ExtrudeRecord record{};
+};
+
+/////////////////////////////////////////////////
+fs::path PolylineFile(std::size_t _job)
+{
+  return fs::path(g_outDir) / ("polyline" + std::to_string(_job) + ".f64");
+}
+
+/////////////////////////////////////////////////
+/// Child: extrude jobs [_first, end) in order, one record each; never returns.
+[[noreturn]] void ExtrudeChild(std::size_t _first, int _fd, unsigned int _timeout)
+{
+  // stdout carries the parent's JSON: whatever the child prints (GLib prints
+  // "Bail out! ..." there when a GTS assertion fails) goes to stderr.
+  dup2(STDERR_FILENO, STDOUT_FILENO);
+  // A crash here is a result: no core file.
+  const struct rlimit noCore = {0, 0};
+  setrlimit(RLIMIT_CORE, &noCore);
+  // gz-common's errors for failed extrusions are a result, not noise.
+  ignition::common::Console::SetVerbosity(0);
+  auto *manager = ignition::common::MeshManager::Instance();
+  const char *fault = std::getenv("HEIGHTMAP_PROBE_FAULT");
+  const std::string faultSpec = fault ? fault : "";
+  for (std::size_t k = _first; k < g_jobs.size(); ++k)
+  {
+    const ExtrudeJob &job = g_jobs[k];
+    // SIGALRM's default action ends the child: reported as a timeout.
+    alarm(_timeout);
+    if (faultSpec == "crash:" + job.name)
+      raise(SIGSEGV);
+    if (faultSpec == "hang:" + job.name)
+    {
+      while (true)
+        pause();
+    }
+    // ign-gazebo6 Physics.cc: "POLYLINE_" + Uuid(); any unique name will do.
+    const std::string name = "POLYLINE_heightmap_probe_" + std::to_string(k);
+    manager->CreateExtrudedPolyline(name, job.polylines, job.height);
+    const ignition::common::Mesh *mesh = manager->MeshByName(name);
+    alarm(0);
+    ExtrudeRecord rec{};
+    rec.job = k;
+    rec.ok = mesh != nullptr;
+    if (mesh != nullptr)
+    {
+      const std::vector<double> xyz = Triangles(mesh);
+      rec.written = WriteDoubles(PolylineFile(k), xyz);
+      rec.triangles = xyz.size() / 9;
+      rec.vertices = mesh->VertexCount();
+      const Vector3d lo = mesh->Min(), hi = mesh->Max();
+      rec.min[0] = lo.X(); rec.min[1] = lo.Y(); rec.min[2] = lo.Z();
+      rec.max[0] = hi.X(); rec.max[1] = hi.Y(); rec.max[2] = hi.Z();
+      manager->RemoveMesh(name);
+    }
+    const char *p = reinterpret_cast<const char *>(&rec);
+    std::size_t left = sizeof(rec);
+    while (left > 0)
+    {
+      const ssize_t n = write(_fd, p, left);
+      if (n < 0 && errno == EINTR)
+        continue;
+      if (n <= 0)
+        _exit(3);
+      p += n;
+      left -= static_cast<std::size_t>(n);
+    }
+  }
+  _exit(0);
+}
+
+/////////////////////////////////////////////////
+/// Extrude every polyline geometry in forked children (see the header).
+std::vector<ExtrudeResult> RunExtrusions()
+{
+  std::vector<ExtrudeResult> results(g_jobs.size());
+  unsigned int timeout = 120;
+  if (const char *env = std::getenv("HEIGHTMAP_PROBE_EXTRUDE_TIMEOUT"))
+    timeout = static_cast<unsigned int>(std::max(1L, std::strtol(env, nullptr, 10)));
+  std::size_t next = 0;
+  while (next < g_jobs.size())
+  {
+    int fds[2];
+    if (pipe(fds) != 0)
+    {
+      std::cerr << "heightmap_probe: pipe failed\n";
+      g_status = 2;
+      return results;
+    }
+    std::cout.flush();
+    std::cerr.flush();
+    const pid_t pid = fork();
+    if (pid < 0)
+    {
+      std::cerr << "heightmap_probe: fork failed\n";
+      g_status = 2;
+      close(fds[0]);
+      close(fds[1]);
+      return results;
+    }
+    if (pid == 0)
+    {
+      close(fds[0]);
+      ExtrudeChild(next, fds[1], timeout);
+    }
+    close(fds[1]);
+    ExtrudeRecord rec{};
+    std::size_t have = 0;
+    while (true)
+    {
+      const ssize_t n = read(fds[0], reinterpret_cast<char *>(&rec) + have,
+          sizeof(rec) - have);
+      if (n < 0 && errno == EINTR)
+        continue;
+      if (n <= 0)
+        break;
+      have += static_cast<std::size_t>(n);
+      if (have < sizeof(rec))
+        continue;
+      have = 0;
+      if (rec.job != next)
+      {
+        std::cerr << "heightmap_probe: extrusion records out of order\n";
+        g_status = 2;
+        break;
+      }
+      ExtrudeResult &r = results[next++];
+      r.record = rec;
+      r.status = rec.ok ? "ok" : "failed";
+      if (rec.ok && !rec.written)
+      {
+        std::cerr << "heightmap_probe: cannot write " << PolylineFile(rec.job) << "\n";
+        g_status = 2;
+      }
+    }
+    close(fds[0]);
+    int wstatus = 0;
+    while (waitpid(pid, &wstatus, 0) < 0 && errno == EINTR)
+    {
+    }
+    if (next < g_jobs.size())
+    {
+      // The child died while extruding job `next`.
+      ExtrudeResult &r = results[next];
+      if (WIFSIGNALED(wstatus))
+      {
+        r.signal = WTERMSIG(wstatus);
+        r.status = r.signal == SIGALRM ? "timeout" : "crashed";
+      }
+      else
+      {
+        r.exitCode = WIFEXITED(wstatus) ? WEXITSTATUS(wstatus) : -1;
+        r.status = "crashed";
+      }
+      std::cerr << "heightmap_probe: extruding " << g_jobs[next].label << " "
+                << r.status << " (signal " << r.signal << ", exit "
+                << r.exitCode << ")\n";
+      ++next;
+    }
+  }
+  return results;
+}
+
+/////////////////////////////////////////////////
+/// Append the extrusion fields to each polyline shape, close every shape.
+void FinishShapes()
+{
+  const char *env = std::getenv("HEIGHTMAP_PROBE_EXTRUDE");
+  const bool skip = env != nullptr && std::string(env) == "0";
+  std::vector<ExtrudeResult> results;
+  if (!skip)
+    results = RunExtrusions();
+  for (std::size_t k = 0; k < g_jobs.size(); ++k)
+  {
+    std::ostringstream o;
+    if (skip)
+    {
+      o << ", \"extrusion\": \"skipped\"";
+    }
+    else
+    {
+      const ExtrudeResult &r = results[k];
+      o << ", \"extrusion\": " << Str(r.status);
+      if (r.status == "ok")
+      {
+        const ExtrudeRecord &rec = r.record;
+        o << ", \"mesh_vertices\": " << rec.vertices
+          << ", \"mesh_triangles\": " << rec.triangles
+          << ", \"mesh_min\": "
+          << Vec(Vector3d(rec.min[0], rec.min[1], rec.min[2]))
+          << ", \"mesh_max\": "
+          << Vec(Vector3d(rec.max[0], rec.max[1], rec.max[2]))
+          << ", \"triangles_file\": "
+          << Str(fs::absolute(PolylineFile(k)).string());
+      }
+      else if (r.status != "failed")
+      {
+        o << ", \"extrusion_signal\": " << r.signal
+          << ", \"extrusion_exit\": " << r.exitCode;
+      }
+    }
+    g_shapes[g_jobs[k].shape] += o.str();
+  }
+  for (auto &shape : g_shapes)
+    shape += "}";
 }
 
 /////////////////////////////////////////////////
@@ -730,6 +1025,8 @@ int main(int argc, char **argv)
     // A model file on its own: report poses in the model frame.
     WalkModel(*root.Model(), root.Model()->RawPose(), true, "");
   }
+
+  FinishShapes();
 
   // root.Version() is the version SDFormat converted the document TO (1.9 for
   // SDFormat 12); OriginalVersion() is the <sdf version="..."> of the file.

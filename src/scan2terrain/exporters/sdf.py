@@ -146,6 +146,16 @@ def model_sdf(
         _sub(collision, "pose", _fmt(hm.centre[0], hm.centre[1], hm.z_min, 0, 0, 0))
     chm = _heightmap(collision, uri, p, None)
     _sub(chm, "sampling", str(p.sampling))
+    # A floor under the terrain, its top at the heightmap's 0 (the floor of a map, the lowest
+    # ground of a terrain): Bullet's height field (gz-sim: DART's bullet detector) loses its
+    # grip on a box whose edges lie on the pixel grid (its 4-point manifold fills with the
+    # side contacts of the flat triangles around it) and lets it sink through, then fall
+    # forever; on the slab it rests. A slab, not a <plane>: dartsim makes a plane a 2100 m
+    # cube, whose contacts are centimetres off in places (see _walls_model).
+    floor = _sub(link, "collision", name="floor_collision")
+    cx, cy, z0 = (hm.centre[0], hm.centre[1], hm.z_min) if p.simulator == GZ else (0, 0, 0)
+    _sub(floor, "pose", _fmt(cx, cy, z0 - GROUND_THICKNESS / 2, 0, 0, 0))
+    _sub(_sub(_sub(floor, "geometry"), "box"), "size", _fmt(p.size[0], p.size[1], GROUND_THICKNESS))
     visual = _sub(link, "visual", name="terrain_visual")
     pos = (hm.centre[0], hm.centre[1], hm.z_min) if p.simulator == GZ else None
     vhm = _heightmap(visual, uri, p, pos)
@@ -359,16 +369,17 @@ def polylines_model_sdf(
         all the polylines of a geometry together and leaves out what lies inside an even number
         of rings (gz-common ``MeshManager::CreateExtrudedPolyline``, triangles whose centroid is
         inside an even number of rings are dropped), so the holes stay open. Extruded from z = 0
-        to ``p.size[2]``.
+        to ``p.size[2]``. The points are written as :func:`gz_polyline_points` moves them
+        (by less than 1e-12 of the largest coordinate), exactly (shortest round-trip repr).
     """
     sdf, link = _walls_model(p, ground, comment)
     height = f"<height>{_fmt(p.size[2])}</height>"
     material = _material_xml(WALL_RGB)
     parts = []
-    for i, rings in enumerate(polygons):
+    for i, rings in enumerate(gz_polyline_points(polygons)):
         lines = []
         for ring in rings:
-            xy = _numbers(np.asarray(ring, dtype=np.float64).reshape(-1, 2))
+            xy = [repr(v) for v in ring.ravel().tolist()]
             points = "".join(
                 f"<point>{u} {v}</point>" for u, v in zip(xy[::2], xy[1::2], strict=True)
             )
@@ -378,6 +389,80 @@ def polylines_model_sdf(
         parts.append(f'<visual name="wall_{i}_visual">{geometry}{material}</visual>')
     _extend(link, parts)
     return _bytes(sdf)
+
+
+#: Largest nudge of a polyline coordinate, in quanta (see :func:`gz_polyline_points`).
+POLYLINE_NUDGE = 256
+#: Smallest cell (metres) for polylines: gz-common merges the points of a polyline geometry
+#: closer than 1e-4 m (``MeshManager::AddUniquePointToVerticesTable``), and outline points can
+#: be half a cell apart (a simplified outline's chamfers).
+POLYLINE_MIN_CELL = 1e-3
+
+
+def gz_polyline_points(
+    polygons: Sequence[Sequence[NDArray[np.float64]]],
+) -> list[list[NDArray[np.float64]]]:
+    """The rings as ``<polyline>`` points that gz-common 4 (and Gazebo Classic 11) can extrude.
+
+    Gazebo builds a polyline geometry with ``MeshManager::CreateExtrudedPolyline`` (gz-sim's
+    Physics system and SceneManager; gz-common 4 and 5, Classic 11), which triangulates all its
+    rings with GTS (``GTSMeshUtils::DelaunayTriangulation``) and fails or crashes on the
+    outlines of a grid, whose points lie on a lattice:
+
+    * hole test: a triangle is dropped when a ray from its centroid crosses an even number of
+      ring edges, counted for ``min(y1, y2) <= y < (y1 + y2) - min(y1, y2)``. In floating point
+      that upper bound is not ``max(y1, y2)``, so a ray at the height of a vertex (every
+      triangle whose corners are evenly spaced in y) counts both edges there, or neither: a
+      triangle inside is dropped, or one in a hole kept. gz-common then finds a ring edge with
+      no triangle, or two ("Unable to extrude mesh. Triangulation failed": no shape at all),
+      or, when the dropped triangle touches no ring, builds the shape with a hole in its caps;
+    * GTS (0.7.6, ``cdt.c``) assumes points in general position. Point location walks from a
+      triangle's barycentre to the new point and restarts from a neighbour's barycentre
+      whenever the walk passes exactly through a vertex, without bound (stack overflow:
+      SIGSEGV); inserting a ring edge that crosses triangles asserts that when the edge's end
+      point is collinear with the far side of a crossed triangle it is that side's vertex
+      (``remove_intersected_edge``: SIGABRT, or a corrupt surface without assertions). On a
+      lattice both happen; where the walk starts depends on a hash of pointers, so whether
+      they do changes from run to run.
+
+    So every coordinate is moved onto a grid of ``q = 2^(e - 50)`` metres, ``2^e`` above the
+    largest absolute coordinate (at least 1 m): sums of three coordinates are then exact, the
+    bound above is ``max(y1, y2)`` and a centroid lies on a vertex's height only when it truly
+    does. And each point is nudged by a hash of its position, up to ``POLYLINE_NUDGE`` quanta in
+    x and in y: no three points are exactly collinear, no four exactly cocircular, unless by a
+    coincidence GTS has not met in our tests. Equal points move equally (rings touching at a
+    point still touch, in every geometry); a point moves by less than ``257 q``, 1e-12 of the
+    largest coordinate (0.2 nm within 1 km of the origin), so no wall changes its cells. The
+    same input gives the same bytes.
+
+    Parameters
+    ----------
+    polygons : sequence of sequences of float arrays, each shape (N, 2)
+        Per polygon its rings, metres, finite.
+
+    Returns
+    -------
+    list of lists of float64 arrays, each shape (N, 2)
+        The same structure, moved.
+    """
+    from scan2terrain.exporters.mesh import _splitmix64
+
+    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 2) for poly in polygons for r in poly]
+    if not rings:
+        return [[] for _ in polygons]
+    xy = np.concatenate(rings)
+    if not np.isfinite(xy).all():
+        raise ValueError("polyline points must be finite")
+    biggest = max(float(np.abs(xy).max()), 1.0)
+    quantum = float(np.ldexp(1.0, int(np.frexp(biggest)[1]) - 50))
+    steps = np.rint(xy / quantum)  # integers, |steps| <= 2^50
+    bits = steps.astype(np.int64).view(np.uint64)
+    mixed = _splitmix64(_splitmix64(bits[:, 0]) ^ bits[:, 1])
+    span = np.uint64(2 * POLYLINE_NUDGE + 1)
+    nudge = np.stack([mixed % span, (mixed >> np.uint64(32)) % span], axis=1)
+    moved = (steps + (nudge.astype(np.int64) - POLYLINE_NUDGE)) * quantum
+    pieces = iter(np.split(moved, np.cumsum([len(r) for r in rings])[:-1]))
+    return [[next(pieces) for _ in poly] for poly in polygons]
 
 
 def _numbers(values: NDArray[np.float64]) -> list[str]:
