@@ -102,10 +102,18 @@ def paint_extrusions(shapes: list[ShapeProbe], grid: OccupancyGrid) -> list[np.n
         if s.extrusion != "ok"
     ]
     assert not broken, f"gz-common could not extrude {len(broken)} polylines: {broken[:20]}"
-    tri = np.concatenate([s.triangles for s in shapes if s.triangles is not None])
+    return paint_caps(
+        np.concatenate([s.triangles for s in shapes if s.triangles is not None]), grid
+    )
+
+
+def paint_caps(tri: np.ndarray, grid: OccupancyGrid) -> list[np.ndarray]:
+    """How many triangles of ``tri`` (T, 3, 3), flat at z = H (top caps) and at z = 0 (bottom
+    caps), cover each cell centre of ``grid``: [top counts, bottom counts]. Other triangles
+    must be vertical (walls' sides)."""
     z = tri[..., 2]
     assert np.all(np.isclose(z, 0.0, atol=1e-9) | np.isclose(z, H, atol=1e-9))
-    counts = []
+    counts: list[np.ndarray] = []
     for level in (H, 0.0):
         cap = tri[np.all(np.isclose(z, level, atol=1e-9), axis=1)]
         u, v = to_grid(grid, cap[..., 0], cap[..., 1])  # (T, 3) each, cells
@@ -242,14 +250,19 @@ def check_walls(
         walls = [s for s in shapes if not s.name.startswith("ground_")]
         collisions = [s for s in walls if s.kind == "collision"]
         visuals = [s for s in walls if s.kind == "visual"]
-        assert len(collisions) == len(visuals) > 0
         if kind == "boxes":
-            assert {s.type for s in walls} == {"box"}
+            assert {s.type for s in collisions} == {"box"}
             counts = paint_boxes(collisions, grid)
             assert counts.max() <= 1, "collision boxes overlap"
             assert np.array_equal(counts == 1, occupied)
-            assert [(s.pose, s.size) for s in visuals] == [(s.pose, s.size) for s in collisions]
-        elif kind == "polylines":
+            # One visual for all the boxes: a mesh of the same boxes, as gz-common loads it.
+            ((vis,),) = (visuals,)
+            assert vis.type == "mesh" and vis.mesh_loaded and vis.triangles is not None
+            for painted in paint_caps(vis.triangles, grid):
+                assert np.array_equal(painted, counts)
+        else:
+            assert len(collisions) == len(visuals) > 0
+        if kind == "polylines":
             polygons = polyline_polygons(collisions)
             for p, s in zip(polygons, visuals, strict=True):
                 assert [pts.tolist() for _, pts in s.polylines] == [r.tolist() for r in p.rings()]
@@ -262,7 +275,7 @@ def check_walls(
             paint_extrusions(visuals, grid)
             for painted in paint_extrusions(collisions, grid):
                 assert np.array_equal(painted, occupied.astype(np.int64))
-        else:
+        elif kind == "mesh":
             ((col,), (vis,)) = collisions, visuals
             assert col.uri is not None and col.uri.endswith(".stl") and col.mesh_loaded
             assert vis.uri is not None and vis.uri.endswith(".dae") and vis.mesh_loaded

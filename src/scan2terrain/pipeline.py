@@ -590,14 +590,17 @@ def _walls(
 ) -> _Walls:
     kind = cfg.world.geometry
     if kind == "boxes":
+        from scan2terrain.exporters import mesh as meshes
         from scan2terrain.exporters.boxes import merge_boxes
 
         cells = merge_boxes(walls)
         boxes = _box_poses(cells, resolution, origin)
+        visual = meshes.boxes_mesh(boxes, cfg.terrain.height)
         return _Walls(
             lambda p, comment: sdf.boxes_model_sdf(p, ground, boxes, comment=comment),
-            {},
-            f"{len(cells)} boxes (the fewest that cover the wall cells exactly) in one model",
+            {f"{sdf.MESH_DIR}/{sdf.MESH_STEM}.dae": meshes.dae_bytes(visual, sdf.MESH_STEM)},
+            f"{len(cells)} boxes (the fewest that cover the wall cells exactly) in one model,"
+            f" one mesh visual of them ({sdf.MESH_DIR}/{sdf.MESH_STEM}.dae)",
         )
     from scan2terrain.exporters import outlines
 

@@ -707,6 +707,36 @@ def _ring_area2(xy: NDArray[np.float64], start: NDArray[np.int64]) -> NDArray[np
     return np.bincount(ring, cross, minlength=len(start) - 1).astype(np.float64)
 
 
+def boxes_mesh(boxes: NDArray[np.float64], height: float, base: float = 0.0) -> Mesh:
+    """Upright boxes as one mesh: 8 vertices and 12 triangles each (outward, counter-clockwise).
+
+    ``boxes`` (K, 5): centre x, y, size x, size y (metres, along the box's axes), yaw (radians),
+    as :func:`scan2terrain.exporters.sdf.boxes_model_sdf` takes them; each from ``base`` to
+    ``base + height``. Neighbouring boxes keep their shared faces (a visual, not a solid).
+    """
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 5)
+    k = len(b)
+    sx = np.array([-0.5, 0.5, 0.5, -0.5])
+    sy = np.array([-0.5, -0.5, 0.5, 0.5])
+    c, s = np.cos(b[:, 4:5]), np.sin(b[:, 4:5])
+    u, v = sx[None, :] * b[:, 2:3], sy[None, :] * b[:, 3:4]
+    x = b[:, 0:1] + c * u - s * v  # (K, 4) corners, counter-clockwise from above
+    y = b[:, 1:2] + s * u + c * v
+    ring = np.stack([x, y], axis=-1)
+    low = np.concatenate([ring, np.full((k, 4, 1), base)], axis=-1)
+    high = np.concatenate([ring, np.full((k, 4, 1), base + height)], axis=-1)
+    vertices = np.concatenate([low, high], axis=1).reshape(-1, 3)
+    # Per box: bottom (seen from below), top, and the four sides.
+    local = np.array(
+        [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]]
+        + [[i, (i + 1) % 4, (i + 1) % 4 + 4] for i in range(4)]
+        + [[i, (i + 1) % 4 + 4, i + 4] for i in range(4)],
+        dtype=np.int64,
+    )
+    faces = (local[None, :, :] + 8 * np.arange(k, dtype=np.int64)[:, None, None]).reshape(-1, 3)
+    return Mesh(vertices, faces)
+
+
 def is_watertight(mesh: Mesh) -> bool:
     """Every edge is used by exactly two faces, once in each direction, and no face repeats a
     vertex: a closed, consistently oriented 2-manifold (combinatorially)."""
