@@ -1,10 +1,13 @@
 """Compiled per-point loops of the tiled column statistics (numba); see tiles.py.
 
-A point's cell is ``(row, col) = (floor(y / r), floor(x / r))`` on the global lattice, computed as
-the octree computes keys (``floor(coord * (1 / r))`` in double), so the columns are the octree's
-voxel columns. Cells live in tiles of ``t x t``, t = 2^shift; tile ``(tr, tc) = (row >> shift,
-col >> shift)`` (arithmetic shifts: floor division for negative cells too, at a third of its
-cost).
+A point's cell is ``(row, col) = (coord_cell(y), coord_cell(x))`` on the global lattice, with the
+octree's own key rule (:func:`scan2terrain.octree.keys.coord_cell`, compiled here: OctoMap's
+``floor(double(float32(coord)) * (1.0 / r))``), so the columns are the octree's voxel columns for
+every point, also within a float32 rounding of a cell edge. A point counts if its coordinates
+are finite as float32 and the centre of its z voxel, ``(coord_cell(z) + 0.5) * r``, lies in the
+z band (as the octree's projection tests voxels), tested as limits on z (``Lattice.z_limits``).
+Cells live in tiles of ``t x t``, t = 2^shift; tile ``(tr, tc) = (row >> shift, col >> shift)``
+(arithmetic shifts: floor division for negative cells too, at a third of its cost).
 """
 
 from __future__ import annotations
@@ -14,23 +17,33 @@ import math
 import numba as nb
 import numpy as np
 
+from scan2terrain.octree.keys import coord_cell
+
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
 
-
-@nb.njit(**_JIT)
-def _usable(x: float, y: float, z: float, z_min: float, z_max: float) -> bool:
-    return math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and z_min <= z <= z_max
+#: The octree's cell rule, the same source compiled.
+_cell = nb.njit(**_JIT)(coord_cell)
 
 
 @nb.njit(**_JIT)
-def extent(points, z_min, z_max):
-    """(x_min, y_min, x_max, y_max, usable points) of the points in the z band."""
+def _usable(x: float, y: float, z: float, band) -> bool:
+    """Whether a point counts: finite as float32 (as the octree stores it) and its z in
+    ``band = (lo, hi)`` (``Lattice.z_limits``: its z voxel's centre in the z band)."""
+    return (
+        math.isfinite(np.float32(x)) and math.isfinite(np.float32(y))
+        and math.isfinite(np.float32(z)) and band[0] <= z <= band[1]
+    )  # fmt: skip
+
+
+@nb.njit(**_JIT)
+def extent(points, band):
+    """(x_min, y_min, x_max, y_max, usable points) of the usable points (:func:`_usable`)."""
     x0 = y0 = np.inf
     x1 = y1 = -np.inf
     n = 0
     for i in range(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        if _usable(x, y, z, z_min, z_max):
+        if _usable(x, y, z, band):
             x0, x1 = min(x0, x), max(x1, x)
             y0, y1 = min(y0, y), max(y1, y)
             n += 1
@@ -38,18 +51,18 @@ def extent(points, z_min, z_max):
 
 
 @nb.njit(**_JIT)
-def flag_tiles(points, inv_res, shift, z_min, z_max, tr0, tc0, flags):
+def flag_tiles(points, inv_res, band, shift, tr0, tc0, flags):
     """flags[tr - tr0, tc - tc0] = 1 for every tile holding a usable point."""
     for i in range(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        if _usable(x, y, z, z_min, z_max):
-            tr = np.int64(math.floor(y * inv_res)) >> shift
-            tc = np.int64(math.floor(x * inv_res)) >> shift
+        if _usable(x, y, z, band):
+            tr = np.int64(_cell(y, inv_res)) >> shift
+            tc = np.int64(_cell(x, inv_res)) >> shift
             flags[tr - tr0, tc - tc0] = 1
 
 
 @nb.njit(**_JIT)
-def accumulate(points, inv_res, shift, z_min, z_max, sum_scale, tr0, tc0, slots, cells, cells32):
+def accumulate(points, inv_res, band, shift, sum_scale, tr0, tc0, slots, cells, cells32):
     """Add every usable point to its cell record ``cells[tile row, cell]``: count (int64 0),
     integer z sum (int64 1, ``floor(z * sum_scale + 0.5)``) and float32 min and max (float32
     words 4 and 5 of ``cells32``, the same memory). ``slots[tr - tr0, tc - tc0]`` is the row of
@@ -59,10 +72,10 @@ def accumulate(points, inv_res, shift, z_min, z_max, sum_scale, tr0, tc0, slots,
     mask = (np.int64(1) << shift) - 1
     for i in range(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        if not _usable(x, y, z, z_min, z_max):
+        if not _usable(x, y, z, band):
             continue
-        row = np.int64(math.floor(y * inv_res))
-        col = np.int64(math.floor(x * inv_res))
+        row = np.int64(_cell(y, inv_res))
+        col = np.int64(_cell(x, inv_res))
         s = slots[(row >> shift) - tr0, (col >> shift) - tc0]
         c = ((row & mask) << shift) | (col & mask)
         z32 = np.float32(z)

@@ -1,22 +1,25 @@
 """Column statistics of points, kept in tiles that merge exactly: the streaming 2.5D grid.
 
 Points go straight into grid columns, no octree: each cell of the global lattice (resolution
-``r``; cell ``(row, col) = (floor(y / r), floor(x / r))``, the octree's voxel columns) keeps the
-number of points whose z lies in the band, their integer z sum (``round(z * SUM_SCALE)``, for the
-mean) and their float32 minimum and maximum. Every one of these merges exactly and in any order
-(integer addition, min, max), so a grid built from any split of the points, merged in any order,
-on one process or many, is the same grid, bit for bit.
+``r``; cell ``(row, col) = (coord_cell(y), coord_cell(x))``, OctoMap's key rule on the float32
+point, ``floor(double(float32(v)) * (1.0 / r))``, so the octree's voxel columns, also for points
+at cell edges) keeps the number of points whose z voxel lies in the band, their integer z sum
+(``round(z * SUM_SCALE)``, for the mean) and their float32 minimum and maximum. Every one of
+these merges exactly and in any order (integer addition, min, max), so a grid built from any
+split of the points, merged in any order, on one process or many, is the same grid, bit for bit.
 
 Cells live in tiles of ``tile x tile`` cells, allocated when a point first lands in them, so
 memory follows the area covered, not the number of points: a :class:`TileSet` is the output grid
 (24 bytes a cell) plus the chunk being added.
 
 Heights are the points' own z (as PDAL's ``writers.gdal`` and CloudCompare's rasteriser give
-them), not voxel centres; the z band tests the points' z. The mean is exact to 1/SUM_SCALE m.
+them), not voxel centres; but which points count is the octree's choice: the z band tests the
+centre of the point's z voxel, as the octree's projection does. The mean is exact to 1/SUM_SCALE m.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,6 +30,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.grids import _tile_kernels as K
 from scan2terrain.grids.projection import STATS, ColumnStats
+from scan2terrain.octree.keys import coord_cell
 from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
 
 #: Heights are summed as integers in units of 1/SUM_SCALE m (2^-14 m, 0.06 mm): integer sums
@@ -51,6 +55,60 @@ class Lattice:
             raise ValueError(f"tile must be a power of two (cells): {self.tile}")
         if math.isnan(self.z_min) or math.isnan(self.z_max) or self.z_min > self.z_max:
             raise ValueError(f"need z_min <= z_max: {self.z_min}, {self.z_max}")
+
+    def z_limits(self) -> tuple[float, float]:
+        """The z band as limits on the points' float64 z: ``lo <= z <= hi`` exactly when the
+        point's z voxel (:func:`~scan2terrain.octree.keys.coord_cell`) has its centre in
+        [z_min, z_max], as the octree's projection selects voxels (a test as cheap as one on
+        the point's z). ±inf: unbounded."""
+        return _z_limits(self.resolution, self.z_min, self.z_max)
+
+
+#: The largest float32, as float64: z beyond it is not finite as float32 (not counted).
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def _ordered(v: float) -> int:
+    """float64 -> int, order-preserving (adjacent floats: adjacent ints)."""
+    b = int(np.float64(v).view(np.int64))
+    return b if b >= 0 else -(b & 0x7FFF_FFFF_FFFF_FFFF)
+
+
+def _unordered(o: int) -> float:
+    b = o if o >= 0 else (-o) | -0x8000_0000_0000_0000
+    return float(np.int64(b).view(np.float64))
+
+
+def _first(pred: Callable[[float], bool]) -> float:
+    """The least finite float64 in [-_F32_MAX, _F32_MAX] where ``pred`` (False, then True along
+    the floats) holds; inf if none."""
+    lo, hi = _ordered(-_F32_MAX), _ordered(_F32_MAX)
+    if not pred(_unordered(hi)):
+        return math.inf
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if pred(_unordered(mid)):
+            hi = mid
+        else:
+            lo = mid + 1
+    return _unordered(lo)
+
+
+@functools.cache
+def _z_limits(resolution: float, z_min: float, z_max: float) -> tuple[float, float]:
+    inv = 1.0 / resolution
+
+    def centre(z: float) -> float:
+        # key_to_coord of the point's z key: (key - KEY_OFFSET + 0.5) * resolution, exactly.
+        return (float(coord_cell(z, inv)) + 0.5) * resolution
+
+    # The voxel centre is monotonic in z: the band's points are an interval of z.
+    lo = -math.inf if z_min == -math.inf else _first(lambda z: centre(z) >= z_min)
+    hi = math.inf
+    if z_max != math.inf:
+        above = _first(lambda z: centre(z) > z_max)
+        hi = _F32_MAX if above == math.inf else float(np.nextafter(above, -math.inf))
+    return lo, hi
 
 
 class TileSet:
@@ -115,25 +173,26 @@ class TileSet:
             raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
         lat = self.lattice
         inv = 1.0 / lat.resolution
-        x0, y0, x1, y1, n = K.extent(pts, lat.z_min, lat.z_max)
+        band = lat.z_limits()
+        x0, y0, x1, y1, n = K.extent(pts, band)
         if n == 0:
             return 0
         shift = lat.tile.bit_length() - 1
-        # floor(v / r) is monotonic in v: the extreme points hold the extreme tiles.
-        tr0, tr1 = (math.floor(v * inv) >> shift for v in (y0, y1))
-        tc0, tc1 = (math.floor(v * inv) >> shift for v in (x0, x1))
+        # A point's cell is monotonic in its coordinate: the extreme points hold the extreme tiles.
+        tr0, tr1 = (coord_cell(v, inv) >> shift for v in (y0, y1))
+        tc0, tc1 = (coord_cell(v, inv) >> shift for v in (x0, x1))
         # A table over the chunk's tile extent: 8 bytes per tile, while the grid those tiles
         # would become is >= 17 bytes per *cell*, so the table never dominates.
         flags = np.ones((tr1 - tr0 + 1, tc1 - tc0 + 1), dtype=np.uint8)
         if flags.size > 1:
             flags[:] = 0
-            K.flag_tiles(pts, inv, shift, lat.z_min, lat.z_max, tr0, tc0, flags)
+            K.flag_tiles(pts, inv, band, shift, tr0, tc0, flags)
         slots = np.full(flags.shape, -1, dtype=np.int64)
         for r, c in zip(*np.nonzero(flags), strict=True):
             slots[r, c] = self._slot((int(r) + tr0, int(c) + tc0))
         cells = self.cells
         K.accumulate(
-            pts, inv, shift, lat.z_min, lat.z_max, SUM_SCALE, tr0, tc0, slots,
+            pts, inv, band, shift, SUM_SCALE, tr0, tc0, slots,
             cells, cells.view(np.float32),
         )  # fmt: skip
         return int(n)
