@@ -34,7 +34,15 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
   fi
 fi
-.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+# Python packages: skipped when this venv already holds them for this pyproject.toml and extra
+# (the demo's second run costs nothing); any change to pyproject.toml reinstalls.
+stamp=".venv/.scan2terrain-installed-${extra:-runtime}-$(sha256sum pyproject.toml | cut -c1-16)"
+pip_install() {
+  if [ -f "$stamp" ] && .venv/bin/python -c 'import scan2terrain' 2>/dev/null; then return 0; fi
+  .venv/bin/python -m pip install -q --upgrade pip >/dev/null
+  .venv/bin/python -m pip install -q -e "$1"
+  touch "$stamp"
+}
 # Open3D's wheel links libusb even when headless.
 # grep reads all of ldconfig's output (no -q): an early exit would fail the pipe under pipefail.
 if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then apt_install libusb-1.0-0; fi
@@ -48,7 +56,7 @@ if [ "$extra" = "test" ]; then
     apt_install libsdformat-dev libignition-common-graphics-dev libignition-physics-dev \
       libignition-physics-heightmap-dev pkg-config g++ octomap-tools
   fi
-  .venv/bin/python -m pip install -q -e ".[test]"
+  pip_install ".[test]"
 else
-  .venv/bin/python -m pip install -q -e .
+  pip_install .
 fi

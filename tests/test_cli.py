@@ -12,7 +12,7 @@ import yaml
 from PIL import Image
 
 from scan2terrain.cli import main
-from tests.conftest import IMAGES, MAPS, write_map
+from tests.conftest import FIXTURES, IMAGES, MAPS, write_map
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
@@ -270,3 +270,73 @@ def test_image_invert_and_extend_keeps_added_cells_at_the_floor(
     with Image.open(model / "materials/textures/heightmap.png") as im:
         png = np.asarray(im)
     assert png.max() == 0  # inverted white is black; the two added columns are black too
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["map2world", str(MAPS["tb3"]), "--geometry", "heightmap"],
+        ["image2world", str(IMAGES["bowl_rgb"])],
+        ["dem2world", str(FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif")],
+        ["octree2world", str(FIXTURES / "octomap/geb079.bt"), "--grid", "height"],
+        ["cloud2world", str(FIXTURES / "clouds/pc_las_simple_twin/simple.las"), "--grid", "height"],
+    ],
+    ids=["map2world", "image2world", "dem2world", "octree2world", "cloud2world"],
+)
+@pytest.mark.parametrize("simulator", ["classic", "both"])
+def test_sixteen_bit_heightmaps_refused_for_classic_by_every_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], simulator: str
+) -> None:
+    """Gazebo Classic reads one byte a pixel: every command that writes a heightmap refuses
+    --bit-depth 16 with Classic, with one message, and writes nothing."""
+    out = tmp_path / "w"
+    code, _, err = run(capsys, *argv, "-o", out, "--bit-depth", "16", "--simulator", simulator)
+    assert code == 2 and err.count("\n") == 1
+    assert "Gazebo Classic reads only the first byte of each heightmap pixel" in err
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("stream", [False, True])
+def test_cloud_report_keeps_the_writers_notes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stream: bool
+) -> None:
+    """What the reader says comes first, and what the writer says is kept: tiled terrain
+    leaves Gazebo Classic out, and the report says so (it was overwritten by the reader's
+    notes)."""
+    config = tmp_path / "tiles.yaml"
+    config.write_text("terrain: {max_side: 129}\n")
+    cloud = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    argv = ["cloud2world", cloud, "-o", tmp_path / "w", "--grid", "height"]
+    argv += ["--resolution", "0.2", "--config", config, *(["--stream"] if stream else [])]
+    code, out, err = run(capsys, *argv)
+    assert code == 0, err
+    assert "251370668.pcd: " in out  # the reader's note
+    assert "heightmap tiles" in out and "Gazebo Classic world not written" in out
+
+
+@pytest.mark.parametrize("no_filter", [False, True])
+def test_preview_says_what_it_shows(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], no_filter: bool
+) -> None:
+    """Three panels (original | filtered | difference) when a filter ran; the input alone,
+    labelled so, with --no-filter."""
+    out = tmp_path / "w"
+    flags = ["--no-filter"] if no_filter else []
+    code, stdout, err = run(capsys, "image2world", IMAGES["bowl_rgb"], "-o", out, *flags)
+    assert code == 0, err
+    with Image.open(IMAGES["bowl_rgb"]) as src, Image.open(out / "preview.png") as im:
+        one_panel = im.size == src.size
+    if no_filter:
+        assert one_panel and "preview (the input; filtering off)" in stdout
+    else:
+        assert not one_panel and "preview (original | filtered | difference)" in stdout
+
+
+def test_octree_file_written_is_reported(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "w"
+    scan = FIXTURES / "octomap/scan.dat.bz2"
+    code, stdout, err = run(capsys, "octree2world", scan, "-o", out, "--resolution", "0.2")
+    assert code == 0, err
+    assert f"OctoMap's .bt (octovis, octomap_server, octree2world): {out}/octree.bt" in stdout

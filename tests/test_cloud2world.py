@@ -211,3 +211,25 @@ def test_bad_cloud_one_line_exit_2_nothing_written(
     assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {src}: ")
     assert message in err
     assert list(outs.iterdir()) == []  # no folder, no hidden temporary folder
+
+
+def test_coarse_height_grid_is_filled_not_a_pin_cushion(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """At 2 m cells the nearest fill reaches 4 cells by default (a fixed 1 m filled nothing,
+    leaving 86% of the grid at the floor between the points' columns); idw gives the same."""
+    shares = {}
+    for name, flags in (
+        ("default", []),
+        ("idw", ["--fill", "idw"]),
+        ("1m", ["--fill-max-distance", "1"]),
+    ):
+        out = tmp_path / name
+        argv = [AUTZEN, "-o", out, "--las-classes", "2", "--grid", "height", "--resolution", "2"]
+        code, _, err = run(capsys, "cloud2world", *argv, "--no-filter", "--simulator", "gz", *flags)
+        assert code == 0, err
+        with Image.open(out / "preview.png") as im:  # the filled grid (one panel: no filter)
+            grid = np.asarray(im)
+        shares[name] = float((grid == grid.min()).mean())
+    assert shares["default"] < 0.4 and abs(shares["default"] - shares["idw"]) < 0.05
+    assert shares["1m"] > 0.8

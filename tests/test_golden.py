@@ -47,6 +47,8 @@ CASES = {
         "2",
         "--bit-depth",
         "16",
+        "--simulator",
+        "gz",  # 16-bit is gz-sim only: Classic reads the first byte (refused with both)
     ],
 }
 

@@ -12,14 +12,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scan2terrain.config import GEOMETRIES
+from scan2terrain.config import FILTERS, GEOMETRIES, SIMULATORS, UNKNOWN_POLICIES
 
 EXAMPLES = """\
 examples:
   scan2terrain map2world fixtures/maps/map_willow_garage_005/willow-full-0.05.yaml -o willow_world
   scan2terrain map2world map.yaml -o out --simulator gz --filter paper --height 2.5 --upsample 2
   scan2terrain image2world floorplan.png -o out --resolution 0.02 --height 1.5 --invert
-  scan2terrain map2world map.yaml -o out --config configs/indoor.yaml --overwrite
+  scan2terrain map2world map.yaml -o out --config configs/indoor_gz.yaml --overwrite
   scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif -o sfbay
 """
 
@@ -30,16 +30,24 @@ COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def _common(p: argparse.ArgumentParser, command: str = "") -> None:
+    """Options every world command takes; the defaults in their help are that command's own
+    (``COMMAND_DEFAULTS``), so ``--help`` says what the command really uses."""
+    own = COMMAND_DEFAULTS.get(command, {})
+
+    def default(key: str, value: object) -> object:
+        return own.get(key, value)
+
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--config", type=Path, help="YAML config file (see configs/); flags override it")
     g = p.add_argument_group("world")
     g.add_argument(
         "--simulator",
-        choices=("gz", "classic", "both"),
+        choices=SIMULATORS,
         dest="world.simulator",
-        help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both (default: both)",
+        help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both "
+        f"(default: {default('world.simulator', 'both')})",
     )
     g.add_argument(
         "--model-name",
@@ -70,7 +78,8 @@ def _common(p: argparse.ArgumentParser) -> None:
         type=int,
         choices=(8, 16),
         dest="terrain.bit_depth",
-        help="heightmap PNG depth; 16 needs gz-sim Garden or newer (default 8)",
+        help="heightmap PNG depth; 16 needs gz-sim Garden or newer "
+        f"(default {default('terrain.bit_depth', 8)})",
     )
     c = p.add_argument_group("canvas (the paper's options, in cells)")
     c.add_argument("--width", type=int, dest="canvas.width", help="crop or extend to this width")
@@ -99,10 +108,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     f = p.add_argument_group("filter")
     f.add_argument(
         "--filter",
-        choices=("none", "median", "majority", "paper", "thin_wall"),
+        choices=FILTERS,
         dest="filter.kind",
         help="paper = the paper's modified median (keeps horizontal/vertical runs of 3);"
-        " thin_wall = it, also keeping diagonal walls (default)",
+        " thin_wall = it, also keeping diagonal walls "
+        f"(default {default('filter.kind', 'thin_wall')})",
     )
     f.add_argument(
         "--no-filter",
@@ -184,18 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("map", type=Path, help="map_server YAML file")
     _common(m)
     _geometry_options(m)
-    m.add_argument(
-        "--unknown",
-        choices=("free", "obstacle", "height"),
-        dest="terrain.unknown",
-        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
-    )
-    m.add_argument(
-        "--unknown-height",
-        type=float,
-        dest="terrain.unknown_height",
-        help="metres, for --unknown height (default 0.5)",
-    )
+    _unknown_options(m)
 
     i = sub.add_parser(
         "image2world",
@@ -239,6 +238,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _unknown_options(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """What unknown cells of an occupancy grid become (every command that makes one)."""
+    p.add_argument(
+        "--unknown",
+        choices=UNKNOWN_POLICIES,
+        dest="terrain.unknown",
+        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
+    )
+    p.add_argument(
+        "--unknown-height",
+        type=float,
+        dest="terrain.unknown_height",
+        help="metres, for --unknown height (default 0.5)",
+    )
+
+
 def _octree_options(p: argparse.ArgumentParser) -> None:
     t = p.add_argument_group("octree and grid")
     t.add_argument(
@@ -271,11 +286,26 @@ def _octree_options(p: argparse.ArgumentParser) -> None:
         dest="octree.grid",
         help="occupancy (octomap_server's projection, default) or height (2.5D)",
     )
+    _unknown_options(t)
     t.add_argument(
-        "--unknown",
-        choices=("free", "obstacle", "height"),
-        dest="terrain.unknown",
-        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
+        "--height-stat",
+        choices=("max", "min", "mean"),
+        dest="octree.height_stat",
+        help="--grid height: each column's highest, lowest or mean occupied z (default max)",
+    )
+    t.add_argument(
+        "--fill",
+        choices=("none", "nearest", "idw"),
+        dest="octree.fill",
+        help="--grid height: fill empty columns from the nearest known one, by inverse "
+        "distance weighting, or not (default nearest)",
+    )
+    t.add_argument(
+        "--fill-max-distance",
+        type=float,
+        dest="octree.fill_max_distance",
+        help="metres: nearest fill leaves columns farther than this from a known one empty "
+        "(default: 4 cells, at least 1 m)",
     )
     t.add_argument(
         "--points",
@@ -532,7 +562,7 @@ def _dem_command(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
-    _common(d)
+    _common(d, "dem2world")
     g = d.add_argument_group("elevation model")
     g.add_argument(
         "--resolution",
@@ -711,11 +741,6 @@ class TaskBar:
             self._bar.set_postfix_str(f"{points / elapsed / 1e6:.2f} M points/s", refresh=False)
 
 
-def _minus(v: float) -> str:
-    """'- 29.125' or '+ 0.125': a coordinate minus ``v``, written for a human."""
-    return f"- {v:g}" if v >= 0 else f"+ {-v:g}"
-
-
 def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
     """Where to spawn a robot (spawn.yaml), and the commands that put ROBOT.sdf there."""
     x, y, z, _, _, yaw = (f"{v:g}" for v in pose)
@@ -743,6 +768,8 @@ def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
 
 def report(result: Any) -> str:
     """How to open what was written, for a human."""
+    from scan2terrain.pipeline import minus
+
     out = result.out
     walls = getattr(result, "geometry", "heightmap") != "heightmap"
     rows, cols = getattr(result, "tiles", (1, 1))
@@ -777,14 +804,14 @@ def report(result: Any) -> str:
                 "  Gazebo Classic:",
                 f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
                 "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
-                f"    a map point (x, y) is world (x {_minus(ox)}, y {_minus(oy)}).",
+                f"    a map point (x, y) is world ({minus('x', ox)}, {minus('y', oy)}).",
             ]
         if w.map_yaml is not None:
             lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
         if w.spawn is not None:
             lines += _spawn_lines(p.simulator, w.spawn)
     if result.preview is not None:
-        lines.append(f"  preview (original | filtered | difference): {result.preview}")
+        lines.append(f"  preview ({result.preview_label}): {result.preview}")
     for note in getattr(result, "notes", []):
         lines.append(f"  {note}")
     lines.append(f"  effective config: {result.config}")

@@ -133,8 +133,9 @@ class OctreeConfig:
     height_stat: str = "max"
     #: none | nearest | idw: how empty columns of a height grid are filled.
     fill: str = "nearest"
-    #: Empty columns farther than this (metres) from a known one stay empty (nearest fill).
-    fill_max_distance: float = 1.0
+    #: Empty columns farther than this (metres) from a known one stay empty (nearest fill);
+    #: None: 4 cells, at least 1 m (a fixed distance shorter than a coarse cell fills nothing).
+    fill_max_distance: float | None = None
     #: none | ply | pcd: also write the occupied voxel centres as OUT/occupied_voxels.<ext>.
     points: str = "none"
 
@@ -318,7 +319,12 @@ class Config:
             "max, min or mean",
         )
         _check(o.fill in ("none", "nearest", "idw"), "octree.fill", o.fill, "none, nearest or idw")
-        _check(o.fill_max_distance > 0, "octree.fill_max_distance", o.fill_max_distance, "> 0")
+        _check(
+            o.fill_max_distance is None or o.fill_max_distance > 0,
+            "octree.fill_max_distance",
+            o.fill_max_distance,
+            "> 0 metres, or null (4 cells, at least 1 m)",
+        )
         _check(o.points in ("none", "ply", "pcd"), "octree.points", o.points, "none, ply or pcd")
         sc = c.scans
         _check(sc.poses in POSE_SOURCES, "scans.poses", sc.poses, f"one of {POSE_SOURCES}")

@@ -9,22 +9,50 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
+
+from scan2terrain.errors import OutputError
+
+
+def check_file_target(path: Path, overwrite: bool, inputs: Iterable[Path | str] = ()) -> Path:
+    """Refuse (:class:`OutputError`, one line) an output file that cannot or must not be written:
+    what :func:`~scan2terrain.exporters.output.check_path` refuses, a folder, an existing
+    file without ``overwrite``, or a missing parent folder. Returns the resolved path."""
+    from scan2terrain.exporters.output import check_path
+
+    path = Path(path)
+    real = check_path(path, inputs, what="output file")
+    if real.is_dir():
+        raise OutputError(f"{path}: is a folder, not a file")
+    if real.exists() and not overwrite:
+        raise OutputError(f"{path}: exists (use --overwrite to replace it)")
+    if not real.parent.is_dir():
+        raise OutputError(f"{path}: folder {real.parent} does not exist")
+    return real
 
 
 def atomic_write(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path`` (mode 0644), then rename it into place.
 
-    On any failure the temporary file is removed and ``path`` is untouched.
+    A symbolic link is written through (its target is replaced, the link stays). On any
+    failure the temporary file is removed and ``path`` is untouched; an ``OSError`` comes back
+    as :class:`OutputError` (still an ``OSError``) naming ``path``.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    real = Path(os.path.realpath(path))
+    tmp: str | None = None
     try:
+        # A short temporary name: any legal name of ``path`` must stay writable.
+        fd, tmp = tempfile.mkstemp(prefix=".s2t-", suffix=".part", dir=real.parent)
         with os.fdopen(fd, "wb") as out:
             out.write(data)
         Path(tmp).chmod(0o644)  # mkstemp makes it 0600
-        Path(tmp).replace(path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            Path(tmp).unlink()
+        Path(tmp).replace(real)
+    except BaseException as exc:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                Path(tmp).unlink()
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         raise

@@ -22,7 +22,14 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.pipeline import Result, Start, occupancy_world, refuse_existing, voxels_world
+from scan2terrain.pipeline import (
+    Result,
+    Start,
+    grid_options,
+    occupancy_world,
+    refuse_existing,
+    voxels_world,
+)
 from scan2terrain.types import OccupancyGrid, Pose2D, Transform
 
 if TYPE_CHECKING:
@@ -99,7 +106,8 @@ def bag2world(
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.scans import map_message, occupancy_from_message, plan_bag
 
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, tuple(bags))
+    grid_options(cfg)
     if streaming(cfg):
         from scan2terrain import stream
 
@@ -125,7 +133,8 @@ def bag2world(
             result = occupancy_world(
                 grid.with_data(trinary), bag.path, out, cfg, overwrite=overwrite
             )
-            result.notes = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
+            # What was read first, then what the writer said (tiles, Classic left out...).
+            result.notes[:0] = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
             return result
         tree, ingest = bag_octree(bag, cfg, plan, progress)
     keys, occupied = tree.occupied_and_free()
@@ -141,7 +150,7 @@ def bag2world(
         extra=extra,
         start=ingest.start,
     )
-    result.notes = list(ingest.notes)
+    result.notes[:0] = ingest.notes
     return result
 
 
@@ -327,7 +336,8 @@ def cloud2world(
     frame)."""
     from scan2terrain.octree.bt import bt_bytes
 
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, tuple(files))
+    grid_options(cfg)
     from scan2terrain.readers.cloudfile import is_url, url_path
 
     if streaming(cfg):
@@ -381,7 +391,7 @@ def cloud2world(
         overwrite=overwrite,
         extra=extra,
     )
-    result.notes = notes
+    result.notes[:0] = notes
     return result
 
 
@@ -396,15 +406,22 @@ def _fixed_pose(cfg: Config) -> Transform:
 
 def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: bool = False) -> str:
     """A cloud file, or a bag's scans (hits only, in the fixed frame), to one cloud file."""
-    from scan2terrain.exporters.pointcloud import write_points
+    from scan2terrain.errors import OutputError
+    from scan2terrain.exporters.pointcloud import FORMATS, write_points
+    from scan2terrain.fileio import check_file_target
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.cloudfile import SUFFIXES
 
     target = Path(target)
-    if target.exists() and not overwrite:
-        from scan2terrain.errors import OutputError
-
-        raise OutputError(f"{target}: exists (use --overwrite to replace it)")
+    # Before any work: a target this cannot write, or must not replace, is refused.
+    check_file_target(target, overwrite, tuple(source))
+    if target.suffix.lower() not in FORMATS:
+        problem = (
+            f"unsupported point cloud extension {target.suffix!r}"
+            if target.suffix
+            else "no point cloud extension"
+        )
+        raise OutputError(f"{target}: {problem} (use one of {', '.join(FORMATS)})")
     if all(Path(s).suffix.lower() in SUFFIXES for s in source):
         clouds, _, notes = read_clouds(source, cfg, local=False)  # coordinates as they were
         points = np.concatenate(clouds)

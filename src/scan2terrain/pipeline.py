@@ -65,6 +65,11 @@ ScalarT = TypeVar("ScalarT", bound=np.generic)
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 CONFIG_FILE = "scan2terrain.yaml"
 SPAWN_FILE = "spawn.yaml"
+#: What the extra files a command writes beside the world are, for the report (by stem).
+EXTRA_ABOUT = {
+    "octree": "the octree, as OctoMap's .bt (octovis, octomap_server, octree2world)",
+    "occupied_voxels": "the occupied voxels' centres",
+}
 
 #: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
 Terrain = Heightmap | TiledHeightmap
@@ -113,6 +118,28 @@ class Result:
     walls: str = ""  #: for wall geometries: what the walls are made of, for the report
     tiles: tuple[int, int] = (1, 1)  #: heightmap tiles along y and x (terrain.max_side)
     spawn: Spawn | None = None  #: where a robot can start, map frame (each world's: worlds)
+    preview_label: str = ""  #: what preview.png shows, for the report
+
+
+@dataclass(frozen=True)
+class Preview:
+    """preview.png and what it shows."""
+
+    png: bytes
+    label: str
+
+
+def make_preview(
+    before: NDArray[np.generic], after: NDArray[np.generic], cfg: Config, *, occupancy: bool
+) -> Preview:
+    """Original | filtered | difference when a filter ran; else the input alone (labelled so)."""
+    f = cfg.filter
+    ran = f.enabled and (f.kind != "none" or (occupancy and f.speckle_min_cells > 1))
+    if ran:
+        return Preview(
+            preview_png(before, after, occupancy=occupancy), "original | filtered | difference"
+        )
+    return Preview(preview_png(before, None, occupancy=occupancy), "the input; filtering off")
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -237,7 +264,7 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     """A map_server map (YAML + image) to a Gazebo world folder. See the module docstring."""
     from scan2terrain.readers import read_map_yaml
 
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, (yaml_path,))
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
     return occupancy_world(grid.with_data(trinary), Path(yaml_path), out, cfg, overwrite=overwrite)
@@ -258,6 +285,8 @@ def occupancy_world(
     name -> bytes) are written into the same folder; ``start`` is where the robot started
     (the spawn pose is searched from there; None: from the map origin)."""
     cfg = cfg.for_grid("occupancy")
+    if cfg.world.geometry == "heightmap":
+        heightmap_options(cfg)
     trinary = invert_occupancy(grid.data) if cfg.canvas.invert else grid.data
     trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
@@ -268,7 +297,7 @@ def occupancy_world(
             out,
             cfg,
             overwrite=overwrite,
-            preview=preview_png(trinary, filtered, occupancy=True),
+            preview=make_preview(trinary, filtered, cfg, occupancy=True),
             extra=extra,
             start=start,
         )
@@ -288,7 +317,7 @@ def occupancy_world(
         hm=hm,
         levels=(0.0, pad, t.height),
         map_out=OccupancyGrid(aligned, grid.resolution, world_origin),
-        preview=preview_png(trinary, filtered, occupancy=True),
+        preview=make_preview(trinary, filtered, cfg, occupancy=True),
         extra=extra,
         spawn=spawn_for(
             heights,
@@ -307,7 +336,8 @@ def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     from scan2terrain.octree.bt import bt_bytes, read_bt
     from scan2terrain.readers.octomap_scan import is_scan_file
 
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, (source,))
+    grid_options(cfg)
     source = Path(source)
     extra: dict[str, bytes] = {}
     if is_scan_file(source):
@@ -360,6 +390,13 @@ def voxels_world(
         extra[f"occupied_voxels.{o.points}"] = points_bytes(centres, f".{o.points}")
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
+    # Size the grid before allocating it (its columns span the keys' x and y range).
+    span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
+    if int(span[0]) * int(span[1]) > cfg.max_pixels:
+        raise ConfigError(
+            f"{source}: the voxels span {int(span[0])} x {int(span[1])} cells of {resolution:g} m,"
+            f" over max_pixels {cfg.max_pixels}: choose a coarser --resolution"
+        )
     if o.grid == "occupancy":
         grid = projection.project_occupancy(keys, occupied, resolution, z_min=z_min, z_max=z_max)
         return occupancy_world(
@@ -378,7 +415,10 @@ def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
 
     o = cfg.octree
     if o.fill == "nearest":
-        return projection.fill_nearest(heights, max_distance_m=o.fill_max_distance)
+        reach = o.fill_max_distance
+        if reach is None:
+            reach = max(1.0, 4 * heights.resolution)
+        return projection.fill_nearest(heights, max_distance_m=reach)
     if o.fill == "idw":
         return projection.fill_idw(heights)
     return heights
@@ -434,8 +474,8 @@ def height_world(
         hm=hm,
         levels=(floor, (floor + top) / 2, top),
         map_out=None,
-        preview=preview_png(
-            _grey8(before, floor, top), _grey8(filled, floor, top), occupancy=False
+        preview=make_preview(
+            _grey8(before, floor, top), _grey8(filled, floor, top), cfg, occupancy=False
         ),
         extra=extra,
         spawn=spawn_for(aligned, grid.resolution, world_origin, start),
@@ -453,7 +493,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     from scan2terrain.readers import read_grey_image
 
     cfg = heightmap_only(cfg, "image2world")
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, (image_path,))
     img = read_grey_image(image_path, max_pixels=cfg.max_pixels)
     values = np.ascontiguousarray(np.flipud(img.values))
     res = cfg.image.resolution
@@ -482,7 +522,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
         hm=hm,
         levels=levels,
         map_out=None,
-        preview=preview_png(values, filtered, occupancy=False),
+        preview=make_preview(values, filtered, cfg, occupancy=False),
         spawn=spawn_for(heights, res, world_origin, None),
     )
 
@@ -506,7 +546,7 @@ def walls_world(
     cfg: Config,
     *,
     overwrite: bool,
-    preview: bytes,
+    preview: Preview,
     extra: dict[str, bytes] | None = None,
     start: Start | None = None,
 ) -> Result:
@@ -694,14 +734,9 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     from scan2terrain.grids import canvas as grid_canvas
     from scan2terrain.readers.dem import read_dem
 
-    refuse_existing(out, overwrite)
+    refuse_existing(out, overwrite, (dem_path,))
     cfg = heightmap_only(cfg, "dem2world")
     t = cfg.terrain
-    if t.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
-        raise ConfigError(
-            "Gazebo Classic reads only the first byte of each heightmap pixel: use "
-            "--bit-depth 8 with --simulator classic or both (16-bit is gz-sim only)"
-        )
     if cfg.canvas.invert:
         raise ConfigError("canvas.invert (--invert) has no meaning for a DEM")
     source = Path(dem_path)
@@ -764,7 +799,9 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
         # Texture blend heights, in the heightmap's own heights (0 = its lowest point).
         levels=(0.0, hm.z_range / 2, hm.z_range),
         map_out=None,
-        preview=preview_png(_grey8(before, z0, top), _grey8(heights, z0, top), occupancy=False),
+        preview=make_preview(
+            _grey8(before, z0, top), _grey8(heights, z0, top), cfg, occupancy=False
+        ),
         extra=extra,
         comment_extra="".join(f" {n}\n" for n in notes),
         spawn=spawn_for(above + np.float32(z0), res, origin, None),
@@ -799,7 +836,8 @@ def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain) -> list[str]:
         unit = "" if abs(k - 1) < 1e-12 else f", times {k!r} m/{dem.units}"
         lines.append(
             f"Map frame = DEM frame: x east, y north, metres from the DEM centre, CRS "
-            f"({cx!r}, {cy!r}) {dem.units}s: a point (E, N) is at (E - {cx!r}, N - {cy!r}){unit}."
+            f"({cx!r}, {cy!r}) {dem.units}s: a point (E, N) is at"
+            f" ({minus('E', cx)}, {minus('N', cy)}){unit}."
         )
     else:
         lines.append("Map frame = DEM frame: metres from the image centre, x right, y up.")
@@ -811,7 +849,7 @@ def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain) -> list[str]:
     else:
         lines.append(
             f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m);"
-            f" in Gazebo Classic z = elevation - {hm.z_min!r} m."
+            f" in Gazebo Classic z = {minus('elevation', hm.z_min)} m."
         )
     return lines + list(dem.notes)
 
@@ -893,8 +931,9 @@ def _gz_side(k: int) -> int:
 
 def heightmap_only(cfg: Config, what: str) -> Config:
     """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
-    refuses wall geometries."""
+    refuses wall geometries and what no heightmap can be (:func:`heightmap_options`)."""
     cfg = cfg.for_grid("heights")
+    heightmap_options(cfg)
     if cfg.world.geometry != "heightmap":
         raise ConfigError(
             f"world.geometry {cfg.world.geometry} needs an occupancy grid (map2world, or"
@@ -903,9 +942,36 @@ def heightmap_only(cfg: Config, what: str) -> Config:
     return cfg
 
 
-def refuse_existing(out: Path, overwrite: bool) -> None:
-    # Checked before any work so a refused run costs nothing; OutputDir checks again.
-    OutputDir.check_target(out, overwrite)
+def grid_options(cfg: Config) -> None:
+    """Before any work, for the commands whose grid comes from voxels or points (octree2world,
+    bag2world, cloud2world): refuse what the world they will write cannot be."""
+    grid = "occupancy" if cfg.octree.grid == "occupancy" else "heights"
+    if cfg.for_grid(grid).world.geometry == "heightmap":
+        heightmap_options(cfg)
+
+
+def minus(name: str, v: float) -> str:
+    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0."""
+    if v == 0:
+        return name
+    return f"{name} - {v!r}" if v > 0 else f"{name} + {-v!r}"
+
+
+def heightmap_options(cfg: Config) -> None:
+    """Refuse, before any work, heightmap options a chosen simulator cannot load: every command
+    that writes a heightmap checks the same things, with the same message."""
+    if cfg.terrain.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
+        raise ConfigError(
+            "Gazebo Classic reads only the first byte of each heightmap pixel: use "
+            "--bit-depth 8 with --simulator classic or both (16-bit is gz-sim only)"
+        )
+
+
+def refuse_existing(out: Path, overwrite: bool, inputs: tuple[Path | str, ...] = ()) -> None:
+    # Checked before any work so a refused run costs nothing; OutputDir checks again. The
+    # target is resolved; one that is or contains an input (``inputs``), ``/``, or the current
+    # or home folder or a parent of them is refused even under --overwrite.
+    OutputDir.check_target(out, overwrite, inputs)
 
 
 def model_name_for(source: Path, hm: Heightmap, cfg: Config) -> str:
@@ -949,7 +1015,7 @@ def _write(
     hm: Terrain,
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
-    preview: bytes,
+    preview: Preview,
     spawn: Spawn,
     extra: dict[str, bytes] | None = None,
     comment_extra: str = "",
@@ -1013,7 +1079,7 @@ def _write_tiled(
     tiled: TiledHeightmap,
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
-    preview: bytes,
+    preview: Preview,
     extra: dict[str, bytes] | None,
     comment_extra: str,
     spawn: Spawn,
@@ -1232,18 +1298,22 @@ def _write_tail(
     cfg: Config,
     *,
     source: Path,
-    preview: bytes,
+    preview: Preview,
     extra: dict[str, bytes] | None,
 ) -> None:
     """Preview, extra files and the effective config, as every command writes them."""
     import yaml
 
     if cfg.output.preview:
-        result.preview = od.write("preview.png", preview)
+        result.preview = od.write("preview.png", preview.png)
+        result.preview_label = preview.label
     if result.spawn is not None and result.worlds:
         od.write(SPAWN_FILE, _spawn_yaml(result))
     for name, data in (extra or {}).items():
-        od.write(name, data)
+        path = od.write(name, data)
+        about = EXTRA_ABOUT.get(Path(name).stem)
+        if about is not None:
+            result.notes.append(f"{about}: {path}")
     header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
     body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
     result.config = od.write(CONFIG_FILE, (header + body).encode())
@@ -1298,7 +1368,8 @@ def _comment(source: Path, hm: Heightmap, p: sdf.Placement) -> str:
     else:
         lines.append(
             " Gazebo Classic keeps heightmaps at the world origin (#2167): map point (x, y) is"
-            f" world (x - {p.offset[0]!r}, y - {p.offset[1]!r}). Spawn the robot there, or use"
+            f" world ({minus('x', p.offset[0])}, {minus('y', p.offset[1])}). Spawn the robot"
+            " there, or use"
             " map/map_classic.yaml, which is already shifted."
         )
     return "\n".join(lines) + "\n"

@@ -432,5 +432,5 @@ def streamed_world(
     else:
         heights = fill_holes(tiles.heights(cfg.octree.height_stat), cfg)
         result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
-    result.notes = [*streamed.notes, f"points counted: {tiles.points:,}"]
+    result.notes[:0] = [*streamed.notes, f"points counted: {tiles.points:,}"]
     return result

@@ -18,8 +18,9 @@ GAP = 8
 RED, BLUE = 1, 2
 
 
-def preview_png(before: NDArray[Any], after: NDArray[Any], *, occupancy: bool) -> bytes:
-    """Before and after in grid order (row 0 lowest y), same shape, as a three-panel PNG.
+def preview_png(before: NDArray[Any], after: NDArray[Any] | None, *, occupancy: bool) -> bytes:
+    """Before and after in grid order (row 0 lowest y), same shape, as a three-panel PNG
+    (``after`` None: ``before`` alone, one panel).
 
     Occupancy grids are drawn in map_saver shades; grey images as they are (scaled to 8 bits).
     The difference panel is the "after" image faded, with cells that changed in colour: red where
@@ -28,6 +29,8 @@ def preview_png(before: NDArray[Any], after: NDArray[Any], *, occupancy: bool) -
     """
     from PIL import Image
 
+    if after is None:
+        return _one_panel(before, occupancy)
     if before.shape != after.shape:
         raise ValueError("before and after must have the same shape")
     step = max(1, -(-max(before.shape) // MAX_PANEL))
@@ -52,6 +55,16 @@ def preview_png(before: NDArray[Any], after: NDArray[Any], *, occupancy: bool) -
     img.putpalette(palette.ravel().tolist())
     buf = io.BytesIO()
     img.save(buf, format="PNG", compress_level=1)  # a preview: speed first
+    return buf.getvalue()
+
+
+def _one_panel(before: NDArray[Any], occupancy: bool) -> bytes:
+    from PIL import Image
+
+    step = max(1, -(-max(before.shape) // MAX_PANEL))
+    grey = np.ascontiguousarray(_grey(np.flipud(before)[::step, ::step], occupancy))
+    buf = io.BytesIO()
+    Image.fromarray(grey, mode="L").save(buf, format="PNG", compress_level=1)
     return buf.getvalue()
 
 
