@@ -340,3 +340,20 @@ def test_octree_file_written_is_reported(
     code, stdout, err = run(capsys, "octree2world", scan, "-o", out, "--resolution", "0.2")
     assert code == 0, err
     assert f"OctoMap's .bt (octovis, octomap_server, octree2world): {out}/octree.bt" in stdout
+
+
+@pytest.mark.parametrize("stream", [False, True])
+def test_grid_too_large_is_refused_before_allocating(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stream: bool
+) -> None:
+    """Clouds in different coordinate systems (a UTM LAZ and a local XYZ) span ~10^11 cells:
+    one line, exit 2, on the octree and the streamed path (was a 2 TiB MemoryError, exit 1)."""
+    clouds = FIXTURES / "clouds"
+    laz = clouds / "pc_laz_autzen_trim/autzen_trim.laz"
+    xyz = clouds / "pc_xyz_street_lidar/multisensor_lidar.xyz"
+    argv = ["cloud2world", laz, xyz, "-o", tmp_path / "w", "--grid", "height"]
+    argv += ["--resolution", "1"]
+    code, _, err = run(capsys, *argv, *(["--stream"] if stream else []))
+    assert code == 2 and err.count("\n") == 1, err
+    assert "different coordinate systems" in err  # the likely cause, not a setting already set
+    assert leftovers(tmp_path) == []

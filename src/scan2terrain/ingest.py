@@ -371,11 +371,13 @@ def cloud2world(
         res = tree.resolution
         span = f"outside the octree's key range (+-{KEY_RANGE * res:g} m at {res:g} m)"
         if len(keys) == 0:
-            raise InputError(
-                path,
-                f"all points lie {span}: keep scans.local_origin: auto, or use a coarser "
-                "--resolution",
+            hint = (
+                "the files may be in different coordinate systems (one local origin serves"
+                " all); convert them to one, or use a coarser --resolution"
+                if cfg.scans.local_origin == "auto"
+                else "set scans.local_origin: auto, or use a coarser --resolution"
             )
+            raise InputError(path, f"all points lie {span}: {hint}")
         notes.append(
             f"{sum(outside.values()):,} point(s) {span} dropped, e.g. {n:,} of {path.name}"
         )

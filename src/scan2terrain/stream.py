@@ -425,6 +425,13 @@ def streamed_world(
     tiles = streamed.tiles
     if tiles.points == 0:
         raise InputError(source, "no point in the z band: nothing to make a grid of")
+    rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
+    if rows * cols > cfg.max_pixels:
+        raise ConfigError(
+            f"{source}: the points span {cols} x {rows} cells of {tiles.lattice.resolution:g} m,"
+            f" over max_pixels {cfg.max_pixels}: choose a coarser --resolution (clouds in"
+            " different coordinate systems also spread this far)"
+        )
     if cfg.octree.grid == "occupancy":
         result = occupancy_world(
             tiles.occupancy(), source, out, cfg, overwrite=overwrite, start=streamed.start

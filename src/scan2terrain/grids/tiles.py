@@ -279,6 +279,12 @@ class TileSet:
             out[gr0 - r0 : gr1 - r0, gc0 - c0 : gc1 - c0] = values(records)
         return out
 
+    def grid_shape(self) -> tuple[int, int]:
+        """Rows and columns of the dense grid :meth:`heights` / :meth:`occupancy` would return
+        (the bounding box of the cells with a point), without allocating it."""
+        r0, c0, r1, c1 = self._known_box()
+        return r1 - r0 + 1, c1 - c0 + 1
+
     def origin_of(self, box: tuple[int, int, int, int]) -> Pose2D:
         r = self.lattice.resolution
         return Pose2D(box[1] * r, box[0] * r, 0.0)
