@@ -12,7 +12,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scan2terrain.config import FILTERS, GEOMETRIES, SIMULATORS, UNKNOWN_POLICIES
+from scan2terrain.config import (
+    FILLS,
+    FILTERS,
+    GEOMETRIES,
+    HEIGHT_STATS,
+    SIMULATORS,
+    UNKNOWN_POLICIES,
+)
 
 EXAMPLES = """\
 examples:
@@ -289,13 +296,13 @@ def _octree_options(p: argparse.ArgumentParser) -> None:
     _unknown_options(t)
     t.add_argument(
         "--height-stat",
-        choices=("max", "min", "mean"),
+        choices=HEIGHT_STATS,
         dest="octree.height_stat",
         help="--grid height: each column's highest, lowest or mean occupied z (default max)",
     )
     t.add_argument(
         "--fill",
-        choices=("none", "nearest", "idw"),
+        choices=FILLS,
         dest="octree.fill",
         help="--grid height: fill empty columns from the nearest known one, by inverse "
         "distance weighting, or not (default nearest)",

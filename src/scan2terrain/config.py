@@ -19,6 +19,8 @@ UNKNOWN_POLICIES = ("free", "obstacle", "height")
 SIMULATORS = ("gz", "classic", "both")
 GEOMETRIES = ("auto", "heightmap", "mesh", "boxes", "polylines")
 POSE_SOURCES = ("auto", "tf", "odom", "trajectory", "fixed")
+HEIGHT_STATS = ("max", "min", "mean")
+FILLS = ("none", "nearest", "idw")
 
 
 @dataclass
@@ -313,12 +315,12 @@ class Config:
         )
         _check(o.grid in ("occupancy", "height"), "octree.grid", o.grid, "occupancy or height")
         _check(
-            o.height_stat in ("max", "min", "mean"),
+            o.height_stat in HEIGHT_STATS,
             "octree.height_stat",
             o.height_stat,
             "max, min or mean",
         )
-        _check(o.fill in ("none", "nearest", "idw"), "octree.fill", o.fill, "none, nearest or idw")
+        _check(o.fill in FILLS, "octree.fill", o.fill, f"one of {FILLS}")
         _check(
             o.fill_max_distance is None or o.fill_max_distance > 0,
             "octree.fill_max_distance",

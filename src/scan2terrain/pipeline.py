@@ -129,13 +129,18 @@ class Preview:
     label: str
 
 
+def filtering(cfg: Config, *, occupancy: bool) -> bool:
+    """Whether the configured filter changes anything: a filter kind, or for occupancy grids
+    also speckle removal (heights and greys have no speckles)."""
+    f = cfg.filter
+    return f.enabled and (f.kind != "none" or (occupancy and f.speckle_min_cells > 1))
+
+
 def make_preview(
     before: NDArray[np.generic], after: NDArray[np.generic], cfg: Config, *, occupancy: bool
 ) -> Preview:
     """Original | filtered | difference when a filter ran; else the input alone (labelled so)."""
-    f = cfg.filter
-    ran = f.enabled and (f.kind != "none" or (occupancy and f.speckle_min_cells > 1))
-    if ran:
+    if filtering(cfg, occupancy=occupancy):
         return Preview(
             preview_png(before, after, occupancy=occupancy), "original | filtered | difference"
         )
@@ -147,9 +152,9 @@ def make_preview(
 
 def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]:
     """Apply the configured filter and speckle removal to a trinary grid."""
-    f = cfg.filter
-    if not f.enabled or (f.kind == "none" and f.speckle_min_cells <= 1):
+    if not filtering(cfg, occupancy=True):
         return trinary
+    f = cfg.filter
     rank = _apply_filter(to_rank(trinary), f.kind, f.size, fallback="majority")
     if f.speckle_min_cells > 1:
         rank = remove_speckles(
@@ -163,10 +168,9 @@ def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]
 
 def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:
     """Apply the configured filter to a grey image (median fallback: greys are ordered)."""
-    f = cfg.filter
-    if not f.enabled or f.kind == "none":
+    if not filtering(cfg, occupancy=False):
         return values
-    return _apply_filter(values, f.kind, f.size, fallback="median")
+    return _apply_filter(values, cfg.filter.kind, cfg.filter.size, fallback="median")
 
 
 def _apply_filter(
@@ -392,11 +396,7 @@ def voxels_world(
     z_max = math.inf if o.z_max is None else o.z_max
     # Size the grid before allocating it (its columns span the keys' x and y range).
     span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
-    if int(span[0]) * int(span[1]) > cfg.max_pixels:
-        raise ConfigError(
-            f"{source}: the voxels span {int(span[0])} x {int(span[1])} cells of {resolution:g} m,"
-            f" over max_pixels {cfg.max_pixels}: choose a coarser --resolution"
-        )
+    refuse_large_grid(source, "voxels", int(span[1]), int(span[0]), resolution=resolution, cfg=cfg)
     if o.grid == "occupancy":
         grid = projection.project_occupancy(keys, occupied, resolution, z_min=z_min, z_max=z_max)
         return occupancy_world(
@@ -459,10 +459,9 @@ def height_world(
     known = grid.known
     floor = float(heights[known].min()) if known.any() else 0.0
     filled = np.where(known, heights, floor).astype(np.float32)
-    f = cfg.filter
     before = filled
-    if f.enabled and f.kind != "none":
-        filled = median_filter(filled, size=f.size)
+    if filtering(cfg, occupancy=False):
+        filled = median_filter(filled, size=cfg.filter.size)
     aligned, world_origin = axis_align(filled, grid.origin, grid.resolution, fill=floor)
     hm = terrain_layout(aligned, grid.resolution, world_origin, cfg, pad_height=floor)
     top = float(aligned.max(initial=floor))
@@ -703,7 +702,7 @@ def _box_poses(cells: NDArray[np.int64], resolution: float, origin: Pose2D) -> N
 
 def _filter_text(cfg: Config) -> str:
     f = cfg.filter
-    if not f.enabled or (f.kind == "none" and f.speckle_min_cells <= 1):
+    if not filtering(cfg, occupancy=True):
         return "no filter"
     text = f"filter {f.kind}"
     if f.speckle_min_cells > 1:
@@ -763,9 +762,8 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     if not known.any():
         raise InputError(source, "the canvas options leave no DEM cell")
     before = heights
-    f = cfg.filter
-    if f.enabled and f.kind != "none":
-        heights = median_filter(heights, size=f.size)
+    if filtering(cfg, occupancy=False):
+        heights = median_filter(heights, size=cfg.filter.size)
     # The DEM's own lowest elevation is the heightmap's 0 (and the padding), even where the
     # grid was resampled, cropped or filtered: pose z is always that elevation.
     z0 = dem.z_min
@@ -940,6 +938,19 @@ def heightmap_only(cfg: Config, what: str) -> Config:
             f" octree/bag/cloud2world with octree.grid occupancy); {what} makes heightmaps only"
         )
     return cfg
+
+
+def refuse_large_grid(
+    source: Path, what: str, rows: int, cols: int, *, resolution: float, cfg: Config
+) -> None:
+    """Refuse a grid of ``rows`` x ``cols`` cells over ``max_pixels`` before it is allocated
+    (the octree's and the streamed path's, from the ``what`` it spans)."""
+    if rows * cols > cfg.max_pixels:
+        raise ConfigError(
+            f"{source}: the {what} span {cols} x {rows} cells of {resolution:g} m, over"
+            f" max_pixels {cfg.max_pixels}: choose a coarser --resolution (files in different"
+            " coordinate systems also spread this far)"
+        )
 
 
 def grid_options(cfg: Config) -> None:

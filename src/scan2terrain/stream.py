@@ -420,18 +420,13 @@ def streamed_world(
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid."""
-    from scan2terrain.pipeline import fill_holes, height_world, occupancy_world
+    from scan2terrain.pipeline import fill_holes, height_world, occupancy_world, refuse_large_grid
 
     tiles = streamed.tiles
     if tiles.points == 0:
         raise InputError(source, "no point in the z band: nothing to make a grid of")
     rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
-    if rows * cols > cfg.max_pixels:
-        raise ConfigError(
-            f"{source}: the points span {cols} x {rows} cells of {tiles.lattice.resolution:g} m,"
-            f" over max_pixels {cfg.max_pixels}: choose a coarser --resolution (clouds in"
-            " different coordinate systems also spread this far)"
-        )
+    refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
     if cfg.octree.grid == "occupancy":
         result = occupancy_world(
             tiles.occupancy(), source, out, cfg, overwrite=overwrite, start=streamed.start

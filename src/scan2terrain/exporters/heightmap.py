@@ -83,27 +83,17 @@ class Heightmap:
         """The highest ground Gazebo builds from this image under the square of half-side
         ``half`` metres centred on map point (x, y): pixels scaled as Gazebo scales them
         (``v / v_max * z_range`` above ``z_min``), linear between pixel centres (metres)."""
-        px = self.pixels.astype(np.float64)
-        top = float(px.max())
-        z = self.z_min + (px / top * self.z_range if top > 0 else px * 0.0)
-        n = self.side
-        mid = (n - 1) / 2
+        from scan2terrain.grids.spawn import ground_under
+
+        top = float(self.pixels.max())
+        mid = (self.side - 1) / 2
         # Image order: column j at x = cx + (j - mid) r, row i at y = cy + (mid - i) r.
-        u = np.linspace(-half, half, 9)
-        cols = (x - self.centre[0] + u[None, :]) / self.resolution + mid
-        rows = mid - (y - self.centre[1] + u[:, None]) / self.resolution
-        cols, rows = np.broadcast_arrays(np.clip(cols, 0, n - 1), np.clip(rows, 0, n - 1))
-        r0 = np.minimum(np.floor(rows).astype(np.intp), n - 2)
-        c0 = np.minimum(np.floor(cols).astype(np.intp), n - 2)
-        a, b = rows - r0, cols - c0
-        lerp = (z[r0, c0] * (1 - b) + z[r0, c0 + 1] * b) * (1 - a) + (
-            z[r0 + 1, c0] * (1 - b) + z[r0 + 1, c0 + 1] * b
-        ) * a
-        # Pixel centres inside the square (fine pixels): the surface's peaks are there.
-        i_lo, i_hi = math.ceil(rows.min()), math.floor(rows.max())
-        j_lo, j_hi = math.ceil(cols.min()), math.floor(cols.max())
-        inside = z[i_lo : i_hi + 1, j_lo : j_hi + 1]
-        return float(max(lerp.max(), inside.max(initial=-math.inf)))
+        row = mid - (y - self.centre[1]) / self.resolution
+        col = (x - self.centre[0]) / self.resolution + mid
+        gain = self.z_range / top if top > 0 else 0.0
+        return ground_under(
+            self.pixels, row, col, half / self.resolution, offset=self.z_min, gain=gain
+        )
 
     def png(self) -> bytes:
         """The image as PNG bytes (8-bit or 16-bit greyscale), deterministic."""

@@ -75,7 +75,7 @@ def find_spawn(
         if _RANK[better[2]] < _RANK[how]:
             (pr, pc), z, how = better
     if r > FOOTPRINT / 4:  # coarse cells: the surface between samples, not their maximum
-        z = _surface_max(h, r, pr, pc)
+        z = ground_under(h, pr, pc, FOOTPRINT / 2 / r)
     x, y = origin.transform(np.array((pc + 0.5) * r), np.array((pr + 0.5) * r))
     where = f"{why}: " if why else ""
     return Spawn(float(x), float(y), z, float(yaw), f"{where}{_HOW[how]}")
@@ -158,17 +158,38 @@ def _search(
     return (pr + r0, pc + c0), float(top[pr, pc]), "flattest"
 
 
-def _surface_max(h: NDArray[np.float64], r: float, row: int, col: int) -> float:
-    """The highest point of the ground (bilinear between cell-centre samples, as Gazebo's
-    triangles are between them) under the footprint square centred on cell (row, col)."""
-    half = FOOTPRINT / 2 / r  # in cells
-    offsets = np.linspace(-half, half, 9)
-    fr = np.clip(row + offsets[:, None] + 0 * offsets[None, :], 0, h.shape[0] - 1)
-    fc = np.clip(col + offsets[None, :] + 0 * offsets[:, None], 0, h.shape[1] - 1)
-    r0 = np.minimum(np.floor(fr).astype(np.intp), max(h.shape[0] - 2, 0))
-    c0 = np.minimum(np.floor(fc).astype(np.intp), max(h.shape[1] - 2, 0))
-    r1 = np.minimum(r0 + 1, h.shape[0] - 1)
-    c1 = np.minimum(c0 + 1, h.shape[1] - 1)
+def ground_under(
+    samples: NDArray[np.generic],
+    row: float,
+    col: float,
+    half: float,
+    *,
+    offset: float = 0.0,
+    gain: float = 1.0,
+) -> float:
+    """The highest ground under a square of half-side ``half`` (in samples) centred on the
+    fractional sample position (``row``, ``col``) of a height field whose samples are
+    ``offset + gain * samples`` (metres), linear between them as Gazebo's triangles are: the
+    samples inside the square, and the surface sampled along and across it. Only the samples
+    near the square are read (a heightmap may hold 16 M of them)."""
+    n_rows, n_cols = samples.shape
+    r_lo = max(0, min(n_rows - 1, math.floor(row - half)))
+    r_hi = max(0, min(n_rows - 1, math.ceil(row + half)))
+    c_lo = max(0, min(n_cols - 1, math.floor(col - half)))
+    c_hi = max(0, min(n_cols - 1, math.ceil(col + half)))
+    z = offset + gain * np.asarray(samples[r_lo : r_hi + 1, c_lo : c_hi + 1], dtype=np.float64)
+    u = np.linspace(-half, half, 9)
+    fr = np.clip(row + u[:, None] + 0 * u[None, :], r_lo, r_hi) - r_lo
+    fc = np.clip(col + u[None, :] + 0 * u[:, None], c_lo, c_hi) - c_lo
+    r0 = np.minimum(np.floor(fr).astype(np.intp), max(z.shape[0] - 2, 0))
+    c0 = np.minimum(np.floor(fc).astype(np.intp), max(z.shape[1] - 2, 0))
+    r1, c1 = np.minimum(r0 + 1, z.shape[0] - 1), np.minimum(c0 + 1, z.shape[1] - 1)
     a, b = fr - r0, fc - c0
-    z = (h[r0, c0] * (1 - b) + h[r0, c1] * b) * (1 - a) + (h[r1, c0] * (1 - b) + h[r1, c1] * b) * a
-    return float(z.max())
+    lerp = (z[r0, c0] * (1 - b) + z[r0, c1] * b) * (1 - a) + (
+        z[r1, c0] * (1 - b) + z[r1, c1] * b
+    ) * a
+    # Samples inside the square: the surface's peaks are there.
+    i_lo, i_hi = math.ceil(row - half) - r_lo, math.floor(row + half) - r_lo
+    j_lo, j_hi = math.ceil(col - half) - c_lo, math.floor(col + half) - c_lo
+    inside = z[max(i_lo, 0) : max(i_hi + 1, 0), max(j_lo, 0) : max(j_hi + 1, 0)]
+    return float(max(lerp.max(), inside.max(initial=-math.inf)))
