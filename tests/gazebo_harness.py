@@ -156,7 +156,8 @@ def probe_binary(
     pkg_modules: tuple[str, ...] = PKG_MODULES,
     install_hint: str = INSTALL_HINT,
 ) -> Path:
-    """Compile a probe (default ``heightmap_probe.cpp``) once per source sha256; its path.
+    """Compile a probe (default ``heightmap_probe.cpp``) once per sha256 of its source and the
+    ``*.hh`` headers beside it; its path.
 
     The binary ``<stem>`` lives in ``tests/.build/<stem>-<sha256[:16]>/`` (git-ignored),
     built with ``g++ -std=c++17 -O1`` against the ``pkg_modules`` pkg-config modules
@@ -165,8 +166,11 @@ def probe_binary(
     ``physics_probe.cpp`` with this same routine.
     """
     stem = source_path.stem
-    source = source_path.read_bytes()
-    digest = hashlib.sha256(source).hexdigest()[:16]
+    # The source and the headers beside it (probe_common.hh, shared by both probes).
+    hashed = hashlib.sha256(source_path.read_bytes())
+    for header in sorted(source_path.parent.glob("*.hh")):
+        hashed.update(header.read_bytes())
+    digest = hashed.hexdigest()[:16]
     out_dir = BUILD_ROOT / f"{stem}-{digest}"
     binary = out_dir / stem
     if binary.is_file() and os.access(binary, os.X_OK):

@@ -106,55 +106,20 @@
 #include <string>
 #include <vector>
 
+#include "probe_common.hh"
+
+using probe::FindInModelDirs;
+using probe::g_modelDirs;
+using probe::Num;
+using probe::ResolveUri;
+using probe::Str;
+
 namespace fs = std::filesystem;
 using ignition::math::Pose3d;
 using ignition::math::Vector3d;
 
 namespace
 {
-
-std::vector<std::string> g_modelDirs;
-
-/////////////////////////////////////////////////
-std::string Num(double _v)
-{
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), "%.17g", _v);
-  std::string s(buf);
-  // JSON has no inf / nan.
-  if (s.find("inf") != std::string::npos || s.find("nan") != std::string::npos)
-    return "null";
-  return s;
-}
-
-/////////////////////////////////////////////////
-std::string Str(const std::string &_s)
-{
-  std::string out = "\"";
-  for (unsigned char c : _s)
-  {
-    switch (c)
-    {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\r': out += "\\r"; break;
-      case '\t': out += "\\t"; break;
-      default:
-        if (c < 0x20)
-        {
-          char buf[8];
-          std::snprintf(buf, sizeof(buf), "\\u%04x", c);
-          out += buf;
-        }
-        else
-        {
-          out += static_cast<char>(c);
-        }
-    }
-  }
-  return out + "\"";
-}
 
 /////////////////////////////////////////////////
 std::string Vec(const Vector3d &_v)
@@ -169,42 +134,6 @@ std::string PoseJson(const Pose3d &_p)
   return "[" + Num(_p.Pos().X()) + ", " + Num(_p.Pos().Y()) + ", " +
       Num(_p.Pos().Z()) + ", " + Num(rpy.X()) + ", " + Num(rpy.Y()) + ", " +
       Num(rpy.Z()) + "]";
-}
-
-/////////////////////////////////////////////////
-/// Find "NAME/rest" (the part after model://) in the model directories.
-std::string FindInModelDirs(const std::string &_rest)
-{
-  for (const auto &dir : g_modelDirs)
-  {
-    fs::path p = fs::path(dir) / _rest;
-    if (fs::exists(p))
-      return fs::absolute(p).lexically_normal().string();
-  }
-  return "";
-}
-
-/////////////////////////////////////////////////
-/// Resolve a heightmap <uri> to an absolute file path, the way gz-sim does
-/// for the common cases: model:// against the model dirs, file:// stripped,
-/// relative paths against the folder of the SDF file that holds the element.
-std::string ResolveUri(const std::string &_uri, const std::string &_sdfFile)
-{
-  const std::string modelPrefix = "model://";
-  const std::string filePrefix = "file://";
-  if (_uri.rfind(modelPrefix, 0) == 0)
-    return FindInModelDirs(_uri.substr(modelPrefix.size()));
-
-  std::string path = _uri;
-  if (path.rfind(filePrefix, 0) == 0)
-    path = path.substr(filePrefix.size());
-
-  fs::path p(path);
-  if (p.is_relative() && !_sdfFile.empty())
-    p = fs::path(_sdfFile).parent_path() / p;
-  if (!fs::exists(p))
-    return "";
-  return fs::absolute(p).lexically_normal().string();
 }
 
 /////////////////////////////////////////////////

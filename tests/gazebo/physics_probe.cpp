@@ -161,6 +161,14 @@
 #include <unistd.h>
 #include <vector>
 
+#include "probe_common.hh"
+
+using probe::FindInModelDirs;
+using probe::g_modelDirs;
+using probe::Num;
+using probe::ResolveUri;
+using probe::Str;
+
 namespace fs = std::filesystem;
 namespace physics = ignition::physics;
 using ignition::math::Pose3d;
@@ -197,38 +205,6 @@ extern "C" void OnFatalSignal(int _sig)
 }
 
 /////////////////////////////////////////////////
-std::string Num(double _v)
-{
-  if (!std::isfinite(_v))
-    return "null";
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), "%.17g", _v);
-  return buf;
-}
-
-/////////////////////////////////////////////////
-std::string Str(const std::string &_s)
-{
-  std::string out = "\"";
-  for (unsigned char c : _s)
-  {
-    if (c == '"')
-      out += "\\\"";
-    else if (c == '\\')
-      out += "\\\\";
-    else if (c < 0x20)
-    {
-      char buf[8];
-      std::snprintf(buf, sizeof(buf), "\\u%04x", c);
-      out += buf;
-    }
-    else
-      out += static_cast<char>(c);
-  }
-  return out + "\"";
-}
-
-/////////////////////////////////////////////////
 std::string Vec(const Eigen::Vector3d &_v)
 {
   return "[" + Num(_v.x()) + ", " + Num(_v.y()) + ", " + Num(_v.z()) + "]";
@@ -243,41 +219,6 @@ std::string PoseJson(const Eigen::Isometry3d &_tf)
   return "[" + Num(p.Pos().X()) + ", " + Num(p.Pos().Y()) + ", " +
       Num(p.Pos().Z()) + ", " + Num(rpy.X()) + ", " + Num(rpy.Y()) + ", " +
       Num(rpy.Z()) + "]";
-}
-
-/////////////////////////////////////////////////
-// Model folders and URI resolution (as heightmap_probe.cpp).
-std::vector<std::string> g_modelDirs;
-
-std::string FindInModelDirs(const std::string &_rest)
-{
-  for (const auto &dir : g_modelDirs)
-  {
-    const fs::path p = fs::path(dir) / _rest;
-    if (fs::exists(p))
-      return fs::absolute(p).lexically_normal().string();
-  }
-  return "";
-}
-
-/// gz-sim: asFullPath(uri, filePath) (src/Util.cc) then common::findFile with
-/// the resource paths; here model:// looks in the MODEL_DIRs, file:// is
-/// stripped, a relative path is relative to the SDF file holding it.
-std::string ResolveUri(const std::string &_uri, const std::string &_sdfFile)
-{
-  const std::string modelPrefix = "model://";
-  const std::string filePrefix = "file://";
-  if (_uri.rfind(modelPrefix, 0) == 0)
-    return FindInModelDirs(_uri.substr(modelPrefix.size()));
-  std::string path = _uri;
-  if (path.rfind(filePrefix, 0) == 0)
-    path = path.substr(filePrefix.size());
-  fs::path p(path);
-  if (p.is_relative() && !_sdfFile.empty())
-    p = fs::path(_sdfFile).parent_path() / p;
-  if (!fs::exists(p))
-    return "";
-  return fs::absolute(p).lexically_normal().string();
 }
 
 /////////////////////////////////////////////////
