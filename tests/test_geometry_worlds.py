@@ -191,8 +191,8 @@ def check_surface(
     z = triangles[..., 2]
     assert np.all(np.isclose(z, 0.0, atol=1e-6) | np.isclose(z, H, atol=1e-6))
     # Closed and consistently oriented: each directed edge has as many reverse twins as uses.
-    # Only the vertical edges where two solids touch at a corner (cells in diagonal contact, each
-    # ring with its own copy of the point) are used more than once.
+    # Boxes may share vertical edges where two solids touch at a corner; the wall mesh moves its
+    # vertices there a hair apart (mesh.SPLIT), so its edges are each used once.
     keys = np.round(triangles * 1e6).astype(np.int64)
     forward = np.concatenate(
         [np.concatenate([keys[:, k], keys[:, (k + 1) % 3]], axis=1) for k in range(3)]
@@ -211,7 +211,9 @@ def check_surface(
     cells = int(occupied.sum()) * grid.resolution**2 * H
     assert six_v.sum() / 6 > 0.5 * cells
     if volume:
-        assert six_v.sum() / 6 == pytest.approx(cells, rel=1e-5)
+        # At a cell-corner contact each solid loses a sliver at most SPLIT_MAX wide along
+        # its two outline edges there (their length is the mesh's business, hence 1e-3).
+        assert cells * (1 - 1e-3) <= six_v.sum() / 6 <= cells * (1 + 1e-5)
     # The top face's outline, scan-line filled, is the wall cells.
     assert np.array_equal(scanline_fill(top_outline(triangles), grid), occupied)
 
