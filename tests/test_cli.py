@@ -357,3 +357,57 @@ def test_grid_too_large_is_refused_before_allocating(
     assert code == 2 and err.count("\n") == 1, err
     assert "different coordinate systems" in err  # the likely cause, not a setting already set
     assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("kind", ["tasks", "scans"])
+def test_progress_rates_count_from_the_start(
+    kind: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The points/s figure divides by the time since the command started, not since the bar
+    first showed (after the first task: 110,000 points once read as 7819 M points/s)."""
+    from types import SimpleNamespace
+
+    from scan2terrain import cli
+
+    now = [100.0]
+    monkeypatch.setattr(cli.time, "monotonic", lambda: now[0])
+    bar = cli.TaskBar(enabled=True) if kind == "tasks" else cli.ProgressBar(enabled=True)
+    with bar:
+        now[0] += 2.0
+        if isinstance(bar, cli.TaskBar):
+            bar.update(1, 1, 4_000_000)
+        else:
+            bar.update(SimpleNamespace(messages=1, inserted=1, points=4_000_000), 1)
+    assert "2.00 M points/s" in capsys.readouterr().err
+
+
+def test_closed_stdout_pipe_is_not_an_error(tmp_path: Path) -> None:
+    """``scan2terrain ... | head``: the reader leaves early; no traceback, no 'internal error',
+    exit 0, and the world is written."""
+    script = (
+        "import subprocess, sys\n"
+        "p = subprocess.Popen([sys.executable, '-m', 'scan2terrain.cli'] + sys.argv[1:],"
+        " stdout=subprocess.PIPE, stderr=subprocess.PIPE)\n"
+        "p.stdout.close()\n"
+        "err = p.stderr.read().decode()\n"
+        "sys.stderr.write(err)\n"
+        "sys.exit(p.wait())\n"
+    )
+    out = tmp_path / "w"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            script,
+            "map2world",
+            str(FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"),
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert (out / "spawn.yaml").is_file()

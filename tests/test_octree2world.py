@@ -182,3 +182,18 @@ def test_compressed_scan_file_round_trip(tmp_path: Path) -> None:
     (scan,) = list(read_scans(tmp_path / "s.dat.bz2"))
     np.testing.assert_array_equal(scan.points, pts)
     assert math.isclose(float(np.abs(scan.origin).sum()), 0.0)
+
+
+def test_scan_file_progress_bar(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """octree2world reads scan files with a bar on request (scans, points/s; no total, the file
+    is read once), none for a .bt, none by default when stderr is not a terminal."""
+    text = "NODE 0 0 0 0 0 0\n1 0 0\n0 2 0\nNODE 1 0 0 0 0 0\n3 3 1\n"
+    (tmp_path / "s.dat").write_text(text)
+    argv = ["octree2world", str(tmp_path / "s.dat"), "--resolution", "0.5"]
+    assert main([*argv, "-o", str(tmp_path / "a"), "--progress"]) == 0
+    err = capsys.readouterr().err
+    assert "2scan" in err.replace(" ", "") and "points/s" in err, err
+    assert main([*argv, "-o", str(tmp_path / "b")]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["octree2world", str(GEB079), "-o", str(tmp_path / "c"), "--progress"]) == 0
+    assert capsys.readouterr().err == ""

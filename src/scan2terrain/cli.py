@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -240,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(t)
     _geometry_options(t)
     _octree_options(t)
+    _progress_option(t)
     _bag_commands(sub)
     _dem_command(sub)
     return parser
@@ -603,7 +605,14 @@ def main(argv: list[str] | None = None) -> int:
     # must not outlive the command.
     saved, warnings.showwarning = warnings.showwarning, show
     try:
-        return _run(args)
+        code = _run(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
+    except BrokenPipeError:
+        # The reader of our stdout left (``scan2terrain inspect bag | head``): what it read is
+        # what it asked for, and every output file is already in place.
+        _drop_stdout()
+        return 0
     except KeyboardInterrupt:
         print("scan2terrain: interrupted", file=sys.stderr)
         return 130
@@ -627,6 +636,17 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = saved
 
 
+def _drop_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's flush at exit does not fail again."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout without a file descriptor (tests' capture)
+        pass
+
+
 def _run(args: argparse.Namespace) -> int:
     from scan2terrain import pipeline
     from scan2terrain.config import load_config
@@ -640,7 +660,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "map2world":
         result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
     elif args.command == "octree2world":
-        result = pipeline.octree2world(args.tree, args.out, cfg, overwrite=args.overwrite)
+        with ProgressBar(enabled=_show_progress(args)) as bar:
+            result = pipeline.octree2world(
+                args.tree, args.out, cfg, overwrite=args.overwrite, progress=bar.update
+            )
     elif args.command == "dem2world":
         result = pipeline.dem2world(args.dem, args.out, cfg, overwrite=args.overwrite)
     else:
@@ -661,16 +684,16 @@ def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
         if not args.quiet:
             print(text)
         return 0
-    show = sys.stderr.isatty() if args.progress is None else args.progress
+    show = _show_progress(args)
     if args.command == "cloud2world":
-        with TaskBar(enabled=show and not args.quiet) as tasks:
+        with TaskBar(enabled=show) as tasks:
             result = ingest.cloud2world(
                 args.clouds, args.out, cfg, overwrite=args.overwrite, stream_progress=tasks.update
             )
     else:
         with (
-            ProgressBar(enabled=show and not args.quiet) as bar,
-            TaskBar(enabled=show and not args.quiet) as tasks,
+            ProgressBar(enabled=show) as bar,
+            TaskBar(enabled=show) as tasks,
         ):
             progress = bar.update if bar.enabled else None  # no bar: no counting pass
             result = ingest.bag2world(
@@ -686,15 +709,24 @@ def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
     return 0
 
 
+def _show_progress(args: argparse.Namespace) -> bool:
+    """--progress / --no-progress, else when stderr is a terminal; never with --quiet."""
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    return bool(show) and not args.quiet
+
+
 class ProgressBar:
-    """Scans/s, points/s and ETA on stderr (tqdm), updated at most a few times a second."""
+    """Scans/s, points/s and ETA on stderr (tqdm), updated at most a few times a second. Rates
+    count from entering the block, not from the first update (which comes after a scan)."""
 
     def __init__(self, *, enabled: bool) -> None:
         self.enabled = enabled
         self._bar: Any = None
         self._last = 0
+        self._start = 0.0
 
     def __enter__(self) -> ProgressBar:
+        self._start = time.monotonic()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -708,13 +740,15 @@ class ProgressBar:
             from tqdm import tqdm
 
             self._bar = tqdm(
-                total=total, unit="msg", file=sys.stderr, dynamic_ncols=True, mininterval=0.25
+                total=total or None,
+                unit="scan",
+                file=sys.stderr,
+                dynamic_ncols=True,
+                mininterval=0.25,
             )
         self._bar.update(counts.messages - self._last)
         self._last = counts.messages
-        rate = self._bar.format_dict.get("rate") or 0.0
-        per_msg = counts.points / max(counts.inserted, 1)
-        self._bar.set_postfix_str(f"{rate * per_msg / 1e6:.2f} M points/s", refresh=False)
+        self._bar.set_postfix_str(_rate(counts.points, self._start), refresh=False)
 
 
 class TaskBar:
@@ -724,8 +758,10 @@ class TaskBar:
         self.enabled = enabled
         self._bar: Any = None
         self._last = 0
+        self._start = 0.0
 
     def __enter__(self) -> TaskBar:
+        self._start = time.monotonic()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -743,9 +779,13 @@ class TaskBar:
             )
         self._bar.update(done - self._last)
         self._last = done
-        elapsed = self._bar.format_dict.get("elapsed") or 0.0
-        if elapsed > 0:
-            self._bar.set_postfix_str(f"{points / elapsed / 1e6:.2f} M points/s", refresh=False)
+        self._bar.set_postfix_str(_rate(points, self._start), refresh=False)
+
+
+def _rate(points: int, start: float) -> str:
+    """Points per second since ``start`` (time.monotonic), as the bars show it."""
+    elapsed = max(time.monotonic() - start, 1e-3)
+    return f"{points / elapsed / 1e6:.2f} M points/s"
 
 
 def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:

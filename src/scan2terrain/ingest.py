@@ -24,6 +24,7 @@ from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.pipeline import (
     Result,
+    ScanProgress,
     Start,
     grid_options,
     occupancy_world,
@@ -35,10 +36,9 @@ from scan2terrain.types import OccupancyGrid, Pose2D, Transform
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers.bag import Bag
-    from scan2terrain.readers.scans import BagPlan, PosedScan, ScanCounts
+    from scan2terrain.readers.scans import BagPlan, PosedScan
 
-#: Called after every scan: (counts so far, scans expected in total).
-Progress = Callable[["ScanCounts", int], None]
+Progress = ScanProgress
 #: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
 StreamProgress = Callable[[int, int, int], None]
 #: Beyond this distance from the origin (metres) cloud files get a local origin (auto).

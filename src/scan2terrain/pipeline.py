@@ -59,6 +59,10 @@ from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGri
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers.dem import Dem
+    from scan2terrain.readers.scans import ScanCounts
+
+#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
+ScanProgress = Callable[["ScanCounts", int], None]
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
@@ -334,9 +338,18 @@ def occupancy_world(
     )
 
 
-def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
+def octree2world(
+    source: Path,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool = False,
+    progress: ScanProgress | None = None,
+) -> Result:
     """An OctoMap ``.bt`` file, or an OctoMap text scan file (ray-cast into a new octree), to a
-    world folder through octomap_server's 2D projection or a 2.5D height grid."""
+    world folder through octomap_server's 2D projection or a 2.5D height grid. ``progress``
+    (scan files only) is called after each scan with the counts so far and a total of 0
+    (unknown: the file is read once)."""
     from scan2terrain.octree.bt import bt_bytes, read_bt
     from scan2terrain.readers.octomap_scan import is_scan_file
 
@@ -345,7 +358,7 @@ def octree2world(source: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     source = Path(source)
     extra: dict[str, bytes] = {}
     if is_scan_file(source):
-        tree = build_octree(source, cfg)
+        tree = build_octree(source, cfg, progress)
         keys, occupied = tree.occupied_and_free()
         resolution = tree.resolution
         extra["octree.bt"] = bt_bytes(resolution=resolution, keys=keys, occupied=occupied)
@@ -424,20 +437,29 @@ def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
     return heights
 
 
-def build_octree(source: Path, cfg: Config) -> VoxelOctree:
+def build_octree(
+    source: Path, cfg: Config, progress: ScanProgress | None = None
+) -> VoxelOctree:
     """Ray-cast every scan of an OctoMap text scan file into a new octree."""
     from scan2terrain.octree.tree import SensorModel, VoxelOctree
     from scan2terrain.readers.octomap_scan import read_scans
+    from scan2terrain.readers.scans import ScanCounts
 
     o = cfg.octree
     tree = VoxelOctree(
         o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
     )
+    counts = ScanCounts()
     for scan in read_scans(source):
         try:
             tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
         except InputError as exc:
             raise InputError(source, exc.problem) from None
+        counts.messages += 1
+        counts.inserted += 1
+        counts.points += len(scan.points)
+        if progress is not None:
+            progress(counts, 0)
     return tree
 
 
