@@ -22,14 +22,18 @@ from scan2terrain.config import (
     UNKNOWN_POLICIES,
 )
 
-EXAMPLES = """\
+EXAMPLES = r"""
 examples:
   scan2terrain map2world fixtures/maps/map_willow_garage_005/willow-full-0.05.yaml -o willow_world
-  scan2terrain map2world map.yaml -o out --simulator gz --filter paper --height 2.5 --upsample 2
-  scan2terrain image2world floorplan.png -o out --resolution 0.02 --height 1.5 --invert
-  scan2terrain map2world map.yaml -o out --config configs/indoor_gz.yaml --overwrite
+  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3 \
+      --simulator gz --filter paper --height 2.5 --geometry heightmap --upsample 2
+  scan2terrain image2world fixtures/images/heightmap_png_bowl/heightmap_bowl.png -o bowl \
+      --resolution 0.1 --height 1.5 --invert
+  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3 \
+      --config configs/indoor_gz.yaml --overwrite
   scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif -o sfbay
-"""
+(paths are relative to a clone of the repository: fixtures/ holds the bundled samples)
+"""[1:]
 
 #: Defaults a command sets before the config file and the flags (which both override them).
 COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -195,8 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
         "Gazebo world (gz-sim and/or Classic: walls as one mesh by default, or boxes, polylines "
         "or a heightmap), the filtered map as map_server YAML+PGM lined up with the world, a "
         "spawn pose (spawn.yaml), a preview and the effective config.",
-        epilog="examples:\n  scan2terrain map2world map.yaml -o out\n"
-        "  scan2terrain map2world map.yaml -o out_heightmap --geometry heightmap\n",
+        epilog="examples:\n"
+        "  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3\n"
+        "  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3_terrain "
+        "--geometry heightmap\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     m.add_argument("map", type=Path, help="map_server YAML file")
@@ -209,7 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="any image -> Gazebo world folder (luminance is height)",
         description="Read any image (PNG/JPG/TIFF/BMP/PGM, grey/RGB/RGBA/palette/16-bit), take "
         "its luminance as height (white = --height metres) and write a Gazebo heightmap world.",
-        epilog="example:\n  scan2terrain image2world plan.png -o out --resolution 0.05 --height 2\n",  # noqa: E501
+        epilog="example:\n"
+        "  scan2terrain image2world fixtures/images/heightmap_png_bowl/heightmap_bowl.png "
+        "-o bowl --resolution 0.05 --height 2\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     i.add_argument("image", type=Path, help="image file")
@@ -234,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
         "the octree as octree.bt.",
         epilog="examples:\n"
         "  scan2terrain octree2world fixtures/octomap/geb079.bt -o geb079 --z-min 0.1 --z-max 1.8\n"
-        "  scan2terrain octree2world scan.dat.bz2 -o fr079 --resolution 0.1 --grid height\n",
+        "  scan2terrain octree2world fixtures/octomap/scan.dat.bz2 -o fr079 --resolution 0.1 "
+        "--grid height --progress\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     t.add_argument("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
@@ -413,10 +422,11 @@ def _bag_commands(sub: Any) -> None:
         "into the voxel octree (OctoMap's model) and write the same world folder as "
         "octree2world, plus octree.bt. A bag with only a map topic goes the map2world way.",
         epilog="examples:\n"
-        "  scan2terrain bag2world robot.bag -o site_world\n"
-        "  scan2terrain bag2world run/ -o out --topic /velodyne_points --insert endpoints "
-        "--grid height\n"
-        "  scan2terrain bag2world scans.bag -o out --pose 0 0 0.3 0 0 0 --resolution 0.05\n",
+        "  scan2terrain bag2world fixtures/bags/bag1_fuse_tb3_sim_scan_odom -o tb3_world\n"
+        "  scan2terrain bag2world fixtures/bags/bag1_embark_luminar_pointcloud -o road "
+        "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0 --insert endpoints --grid height\n"
+        "  scan2terrain bag2world fixtures/bags/bag1_leg_tracker_room_scan -o room "
+        "--pose 0 0 0.3 0 0 0 --resolution 0.05\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     b.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
@@ -434,11 +444,12 @@ def _bag_commands(sub: Any) -> None:
         "insert them into the voxel octree (end points only by default; --insert raycast casts "
         "rays from --pose, the cloud being in the sensor frame) and write the world folder.",
         epilog="examples:\n"
-        "  scan2terrain cloud2world scan.pcd -o out --z-min 0.1 --z-max 1.5\n"
-        "  scan2terrain cloud2world site.laz -o terrain --las-classes 2 --grid height "
-        "--resolution 1\n"
-        "  scan2terrain cloud2world tiles/*.laz -o city --grid height --resolution 0.5 "
-        "--stream --workers 2\n",
+        "  scan2terrain cloud2world fixtures/clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd "
+        "-o hdl32 --z-min -1.2 --z-max 0.5\n"
+        "  scan2terrain cloud2world fixtures/clouds/pc_laz_autzen_trim/autzen_trim.laz "
+        "-o terrain --las-classes 2 --grid height --resolution 1\n"
+        "  scan2terrain cloud2world fixtures/clouds/pc_laz_autzen_trim/*.laz -o city "
+        "--grid height --resolution 0.5 --stream --workers 2\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument(
@@ -460,8 +471,10 @@ def _bag_commands(sub: Any) -> None:
         description="Convert between point-cloud formats (PCD, PLY, XYZ, CSV, LAS, LAZ), or merge "
         "a bag's scans (hits only, posed in the fixed frame) into one cloud file.",
         epilog="examples:\n"
-        "  scan2terrain convert scan.pcd scan.ply\n"
-        "  scan2terrain convert robot.bag merged.laz --topic /points\n",
+        "  scan2terrain convert fixtures/clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd "
+        "hdl32.ply\n"
+        "  scan2terrain convert fixtures/bags/bag1_embark_luminar_pointcloud merged.laz "
+        "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     v.add_argument("source", type=Path, nargs="+", help="input cloud file(s) or bag")
@@ -483,7 +496,7 @@ def _bag_commands(sub: Any) -> None:
         help="what a bag holds and what bag2world would use",
         description="List a bag's topics, types, counts, duration and tf frames, and which "
         "topics and poses bag2world would use and why.",
-        epilog="example:\n  scan2terrain inspect robot.bag\n",
+        epilog="example:\n  scan2terrain inspect fixtures/bags/bag1_sick_lms1xx_radar_tf\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     n.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
@@ -566,8 +579,10 @@ def _dem_command(sub: Any) -> None:
         epilog="examples:\n"
         "  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif "
         "-o sfbay\n"
-        "  scan2terrain dem2world site_utm.tif -o site --resolution 2 --dem-passthrough\n"
-        "  scan2terrain dem2world dem.tif -o both --simulator both --bit-depth 8\n",
+        "  scan2terrain dem2world fixtures/terrain/dem_moon_polar_geotiff/dem_moon.tif -o moon "
+        "--dem-passthrough\n"
+        "  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif "
+        "-o sfbay_both --simulator both --bit-depth 8\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
