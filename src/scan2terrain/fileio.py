@@ -39,16 +39,23 @@ def atomic_write(path: Path, data: bytes) -> None:
     failure the temporary file is removed and ``path`` is untouched; an ``OSError`` comes back
     as :class:`OutputError` (still an ``OSError``) naming ``path``.
     """
+    from scan2terrain.exporters.output import TMP_PREFIX, locked, sweep
+
     path = Path(path)
     real = Path(os.path.realpath(path))
     tmp: str | None = None
     try:
-        # A short temporary name: any legal name of ``path`` must stay writable.
-        fd, tmp = tempfile.mkstemp(prefix=".s2t-", suffix=".part", dir=real.parent)
+        # A short temporary name: any legal name of ``path`` must stay writable. Locked while
+        # this run lives, so the next run can tell a killed run's leftover (and removes it).
+        with locked(real.parent):
+            sweep(real.parent)
+            fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=".part", dir=real.parent)
+            _flock(fd)
         with os.fdopen(fd, "wb") as out:
             out.write(data)
-        Path(tmp).chmod(0o644)  # mkstemp makes it 0600
-        Path(tmp).replace(real)
+            out.flush()
+            Path(tmp).chmod(0o644)  # mkstemp makes it 0600
+            Path(tmp).replace(real)
     except BaseException as exc:
         if tmp is not None:
             with contextlib.suppress(OSError):
@@ -56,3 +63,11 @@ def atomic_write(path: Path, data: bytes) -> None:
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         raise
+
+
+def _flock(fd: int) -> None:
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        return
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
