@@ -237,3 +237,42 @@ def test_failure_midway_removes_the_parent_folders_it_made(
     code = main(["map2world", str(good), "-o", str(tmp_path / "a/b/out")])
     assert code == 1 and "disk full" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+def test_every_file_read_is_an_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A map's image in another folder, a --config file, a --trajectory file: an output that
+    is or holds one is refused even with --overwrite, and the file stays."""
+    images, yamls = tmp_path / "images", tmp_path / "yamls"
+    images.mkdir()
+    yamls.mkdir()
+    shutil.copy(MAPS["tb3"].with_name("map.pgm"), images / "map.pgm")
+    text = MAPS["tb3"].read_text().replace("image: map.pgm", f"image: {images / 'map.pgm'}")
+    assert str(images) in text
+    (yamls / "map.yaml").write_text(text)
+    (images / "cfg.yaml").write_text("terrain: {height: 1.5}\n")
+    cases = [
+        ["map2world", str(yamls / "map.yaml"), "-o", str(images), "--overwrite"],
+        [
+            "map2world",
+            str(MAPS["tb3"]),
+            "-o",
+            str(images),
+            "--overwrite",
+            "--config",
+            str(images / "cfg.yaml"),
+        ],
+        [
+            "bag2world",
+            str(FIXTURES / "bags/bag1_leg_tracker_room_scan"),
+            "-o",
+            str(images),
+            "--overwrite",
+            "--trajectory",
+            str(images / "cfg.yaml"),
+        ],
+    ]
+    for argv in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "input" in err[0], err
+        assert sorted(p.name for p in images.iterdir()) == ["cfg.yaml", "map.pgm"]

@@ -670,6 +670,10 @@ def _run(args: argparse.Namespace) -> int:
         k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
     }
     cfg = load_config(args.config, overrides, defaults=COMMAND_DEFAULTS.get(args.command))
+    out = getattr(args, "out", None)
+    side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
+    if out is not None and side_inputs:  # files besides the command's input never go either
+        pipeline.refuse_existing(out, args.overwrite, tuple(side_inputs))
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":

@@ -274,6 +274,7 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
 
     refuse_existing(out, overwrite, (yaml_path,))
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
+    refuse_existing(out, overwrite, (meta.image,))  # the image may live elsewhere
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
     return occupancy_world(grid.with_data(trinary), Path(yaml_path), out, cfg, overwrite=overwrite)
 
