@@ -8,6 +8,7 @@ repeated with ``--config OUT/scan2terrain.yaml``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, get_type_hints
@@ -229,7 +230,10 @@ class Config:
         c = self
         _check(c.filter.kind in FILTERS, "filter.kind", c.filter.kind, f"one of {FILTERS}")
         _check(
-            c.filter.size >= 3 and c.filter.size % 2 == 1, "filter.size", c.filter.size, "odd >= 3"
+            3 <= c.filter.size <= MAX_FILTER and c.filter.size % 2 == 1,
+            "filter.size",
+            c.filter.size,
+            f"odd, 3..{MAX_FILTER}",
         )
         _check(
             c.filter.speckle_min_cells >= 0,
@@ -237,7 +241,12 @@ class Config:
             c.filter.speckle_min_cells,
             ">= 0",
         )
-        _check(c.terrain.height > 0, "terrain.height", c.terrain.height, "> 0 metres")
+        _check(
+            0 < c.terrain.height <= MAX_METRES,
+            "terrain.height",
+            c.terrain.height,
+            f"in (0, {MAX_METRES:g}] metres",
+        )
         _check(
             c.terrain.unknown in UNKNOWN_POLICIES,
             "terrain.unknown",
@@ -245,10 +254,10 @@ class Config:
             f"one of {UNKNOWN_POLICIES}",
         )
         _check(
-            c.terrain.unknown_height >= 0,
+            0 <= c.terrain.unknown_height <= MAX_METRES,
             "terrain.unknown_height",
             c.terrain.unknown_height,
-            ">= 0 metres",
+            f"in [0, {MAX_METRES:g}] metres",
         )
         _check(1 <= c.terrain.upsample <= 16, "terrain.upsample", c.terrain.upsample, "1..16")
         _check(c.terrain.bit_depth in (8, 16), "terrain.bit_depth", c.terrain.bit_depth, "8 or 16")
@@ -289,20 +298,45 @@ class Config:
             name,
             "letters, digits, '_' and '-' only",
         )
-        _check(c.image.resolution > 0, "image.resolution", c.image.resolution, "> 0 m/pixel")
+        _check(
+            MIN_CELL <= c.image.resolution <= MAX_CELL,
+            "image.resolution",
+            c.image.resolution,
+            f"{MIN_CELL:g}..{MAX_CELL:g} m/pixel",
+        )
         _check(
             c.image.origin is None or len(c.image.origin) in (2, 3),
             "image.origin",
             c.image.origin,
             "[x, y] or [x, y, yaw]",
         )
-        _check(c.canvas.width is None or c.canvas.width > 0, "canvas.width", c.canvas.width, "> 0")
-        _check(
-            c.canvas.height is None or c.canvas.height > 0, "canvas.height", c.canvas.height, "> 0"
-        )
+        cv = c.canvas
+        for name in ("width", "height"):
+            side = getattr(cv, name)
+            _check(
+                side is None or 0 < side <= MAX_SIDE,
+                f"canvas.{name}",
+                side,
+                f"1..{MAX_SIDE} cells",
+            )
+        for name in ("offset_x", "offset_y"):
+            shift = getattr(cv, name)
+            _check(abs(shift) <= MAX_SIDE, f"canvas.{name}", shift, f"within +-{MAX_SIDE} cells")
         _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
+        if cv.width is not None and cv.height is not None:
+            _check(
+                cv.width * cv.height <= c.max_pixels,
+                "canvas.width",
+                (cv.width, cv.height),
+                f"width x height <= max_pixels ({c.max_pixels})",
+            )
         o = c.octree
-        _check(o.resolution > 0, "octree.resolution", o.resolution, "> 0 metres")
+        _check(
+            MIN_VOXEL <= o.resolution <= MAX_CELL,
+            "octree.resolution",
+            o.resolution,
+            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres",
+        )
         for name in ("hit", "miss", "clamp_min", "clamp_max", "occupancy"):
             _check(0 < getattr(o, name) < 1, f"octree.{name}", getattr(o, name), "in (0, 1)")
         _check(o.miss < 0.5 < o.hit, "octree.hit/miss", (o.hit, o.miss), "miss < 0.5 < hit")
@@ -341,6 +375,12 @@ class Config:
             _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
         _check(sc.max_gap > 0, "scans.max_gap", sc.max_gap, "> 0 seconds")
         _check(
+            sc.las_classes is None or all(0 <= k <= 255 for k in sc.las_classes),
+            "scans.las_classes",
+            sc.las_classes,
+            "LAS classification codes, 0..255",
+        )
+        _check(
             sc.local_origin in ("auto", "none"), "scans.local_origin", sc.local_origin, "auto/none"
         )
         _check(
@@ -351,21 +391,26 @@ class Config:
         )
         t = c.terrain
         _check(
-            t.max_side >= 3 and (t.max_side - 1) & (t.max_side - 2) == 0,
+            3 <= t.max_side <= MAX_SIDE + 1 and (t.max_side - 1) & (t.max_side - 2) == 0,
             "terrain.max_side",
             t.max_side,
-            "2^n+1 >= 3",
+            f"2^n+1, 3..{MAX_SIDE + 1}",
         )
-        _check(c.output.map_max_side >= 1, "output.map_max_side", c.output.map_max_side, ">= 1")
-        st = c.stream
-        _check(st.chunk_points >= 1, "stream.chunk_points", st.chunk_points, ">= 1")
         _check(
-            st.tile_cells >= 1 and st.tile_cells & (st.tile_cells - 1) == 0,
+            1 <= c.output.map_max_side <= MAX_SIDE,
+            "output.map_max_side",
+            c.output.map_max_side,
+            f"1..{MAX_SIDE}",
+        )
+        st = c.stream
+        _check(1 <= st.chunk_points <= 1 << 30, "stream.chunk_points", st.chunk_points, "1..2^30")
+        _check(
+            1 <= st.tile_cells <= 1 << 14 and st.tile_cells & (st.tile_cells - 1) == 0,
             "stream.tile_cells",
             st.tile_cells,
-            "a power of two",
+            "a power of two up to 16384",
         )
-        _check(st.workers >= 0, "stream.workers", st.workers, ">= 0")
+        _check(0 <= st.workers <= 1024, "stream.workers", st.workers, "0..1024")
         _check(
             st.scheduler is None or "://" in st.scheduler,
             "stream.scheduler",
@@ -379,10 +424,10 @@ class Config:
             "0 when stream.scheduler is given (one or the other)",
         )
         _check(
-            c.dem.resolution is None or c.dem.resolution > 0,
+            c.dem.resolution is None or MIN_CELL <= c.dem.resolution <= MAX_CELL,
             "dem.resolution",
             c.dem.resolution,
-            "> 0 metres",
+            f"{MIN_CELL:g}..{MAX_CELL:g} metres",
         )
         return self
 
@@ -401,6 +446,14 @@ class Config:
         return dataclasses.replace(self, world=world)
 
 
+#: Ranges of settings whose absurd values would exhaust memory or lose all precision.
+MAX_FILTER = 99  #: filter window side, cells
+MAX_METRES = 1e5  #: terrain heights
+MIN_CELL, MAX_CELL = 1e-4, 1e5  #: pixel and voxel sizes, metres
+MIN_VOXEL = 1e-3  #: OctoMap keys are 16-bit: at 1 mm the octree spans 65 m
+MAX_SIDE = 1 << 20  #: canvas sides and shifts, heightmap and map tile sides, cells
+
+
 def _check(ok: bool, name: str, value: object, want: str) -> None:
     if not ok:
         raise ConfigError(f"config value {name} = {value!r} is invalid: must be {want}")
@@ -414,18 +467,12 @@ def load_config(
 ) -> Config:
     """Defaults, then a command's own ``defaults``, then the YAML file at ``path``, then
     ``overrides`` (both dicts {"section.key": value})."""
-    import yaml
 
     cfg = Config()
     for dotted, value in (defaults or {}).items():
         _apply(cfg, _nest(dotted, value), "command defaults")
     if path is not None:
-        try:
-            doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: config file not found") from None
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: malformed config YAML ({type(exc).__name__})") from None
+        doc = _read_yaml(Path(path))
         if doc is not None:
             if not isinstance(doc, dict):
                 raise ConfigError(f"{path}: config must be a mapping of sections")
@@ -435,6 +482,28 @@ def load_config(
             continue
         _apply(cfg, _nest(dotted, value), "command line")
     return cfg.validate()
+
+
+#: A config file is a few kB; anything past this is not one.
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def _read_yaml(path: Path) -> Any:
+    import yaml
+
+    try:
+        if not path.is_file():
+            what = "not found" if not path.exists() else "not a regular file"
+            raise ConfigError(f"{path}: config file {what}")
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: config file larger than {MAX_CONFIG_BYTES} bytes")
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"{path}: malformed config YAML ({type(exc).__name__})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror or exc})") from None
 
 
 def _nest(dotted: str, value: Any) -> dict[str, Any]:
@@ -476,11 +545,15 @@ def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
                 return value
             raise TypeError
         if "list[float]" in text:
-            return [float(v) for v in value]
+            if isinstance(value, (str, bytes)):
+                raise TypeError
+            return [_finite(v, where, source) for v in value]
         if "list[int]" in text:
+            if isinstance(value, (str, bytes)):
+                raise TypeError
             if any(isinstance(v, bool) or float(v) != int(v) for v in value):
                 raise TypeError
-            return [int(v) for v in value]
+            return [_bounded(int(v), where, source) for v in value]
         if "list[str]" in text:
             if isinstance(value, str):
                 raise TypeError
@@ -488,13 +561,36 @@ def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
         if "int" in text:
             if isinstance(value, bool) or float(value) != int(value):
                 raise TypeError
-            return int(value)
+            return _bounded(int(value), where, source)
         if "float" in text:
             if isinstance(value, bool):
                 raise TypeError
-            return float(value)
+            return _finite(value, where, source)
         if "str" in text:
             return str(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         pass
-    raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r}; expected {text})")
+    raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r:.60}; expected {text})")
+
+
+#: No setting is a number beyond this (metres, seconds, cells, points): larger values are
+#: typing mistakes, and they overflow the integer types of the arrays they size.
+LIMIT = 1e12
+
+
+def _finite(value: Any, where: str, source: str) -> float:
+    number = float(value)
+    if not (math.isfinite(number) and abs(number) <= LIMIT):
+        raise ConfigError(
+            f"{source}: '{where}' = {value!r:.60} is invalid: must be a finite number "
+            f"within +-{LIMIT:g}"
+        )
+    return number
+
+
+def _bounded(number: int, where: str, source: str) -> int:
+    if abs(number) > LIMIT:
+        raise ConfigError(
+            f"{source}: '{where}' = {str(number)[:24]} is invalid: must be within +-{LIMIT:g}"
+        )
+    return number
