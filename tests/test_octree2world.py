@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bz2
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from scan2terrain.config import load_config
 from scan2terrain.errors import InputError
 from scan2terrain.grids.projection import project_occupancy
 from scan2terrain.octree.bt import read_bt
+from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.octomap_scan import read_scans, rotation
 from tests.conftest import FIXTURES
 from tests.gazebo_harness import probe_world, terrain_height
@@ -197,3 +199,51 @@ def test_scan_file_progress_bar(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert capsys.readouterr().err == ""
     assert main(["octree2world", str(GEB079), "-o", str(tmp_path / "c"), "--progress"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def pruned_bt(path: Path) -> None:
+    """A tree as octomap_server leaves one: under a node at depth 7, seven free leaves of
+    256^3 voxels (117 M voxels) and, in the eighth octant, one occupied voxel at depth 16."""
+
+    def encode(node: object) -> tuple[bytes, int]:
+        if not isinstance(node, list):
+            return b"", 1
+        code, body, count = 0, b"", 1
+        for i, child in enumerate(node):
+            kind = 3 if isinstance(child, list) else {None: 0, "free": 1, "occ": 2}[child]
+            code |= kind << (2 * i)
+            more, n = encode(child) if isinstance(child, list) else (b"", int(child is not None))
+            body += more
+            count += n
+        return struct.pack("<H", code) + body, count
+
+    def chain(levels: int, bottom: list[object]) -> list[object]:
+        node = bottom
+        for _ in range(levels):
+            node = [node, None, None, None, None, None, None, None]
+        return node
+
+    voxel = chain(7, ["occ", None, None, None, None, None, None, None])  # depth 8 .. 15
+    block = ["free"] * 7 + [voxel]  # the node at depth 7
+    data, count = encode(chain(7, block))  # root .. depth 6 above it
+    head = f"# Octomap OcTree binary file\nid OcTree\nsize {count}\nres 0.1\ndata\n"
+    path.write_bytes(head.encode() + data)
+
+
+def test_pruned_tree_with_a_huge_free_leaf(tmp_path: Path) -> None:
+    """Pruned leaves are projected as columns, never expanded: the old path refused this tree
+    with a max_voxels ValueError (exit 1)."""
+    path = tmp_path / "pruned.bt"
+    pruned_bt(path)
+    bt = read_bt(path)
+    assert sorted(bt.depth.tolist()) == [8] * 7 + [16]
+    assert bt.num_voxels == 7 * 256**3 + 1
+    for band in ([], ["--z-max", "-3250"]):
+        out = tmp_path / f"w{len(band)}"
+        assert main(["octree2world", str(path), "-o", str(out), "-q", "--no-filter", *band]) == 0
+        _, grid = read_map_yaml(out / "map/map_gz.yaml")
+        assert grid.data.shape == (512, 512)
+        assert (grid.data == 100).sum() == 1 and (grid.data == 0).sum() == 512 * 512 - 1
+    assert (
+        main(["octree2world", str(path), "-o", str(tmp_path / "h"), "-q", "--grid", "height"]) == 0
+    )

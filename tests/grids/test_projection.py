@@ -538,3 +538,50 @@ def test_errors_on_bad_stats_and_fill_options() -> None:
         fill_idw(g, power=-1.0)
     with pytest.raises(ValueError, match="metric"):
         fill_idw(g, metric="manhattan")
+
+
+# --- pruned leaves: vertical runs -------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    leaves=hnp.arrays(
+        np.int64, st.tuples(st.integers(1, 12), st.just(4)), elements=st.integers(0, 3)
+    ),
+    data=st.data(),
+)
+def test_runs_give_what_the_expanded_voxels_give(leaves: NDArray[np.int64], data: Any) -> None:
+    """Leaves of sides 1, 2, 4, 8 (tree depths 16..13), as runs and as every voxel: the same
+    occupancy grid and column statistics, for any z band."""
+    from scan2terrain.grids.projection import leaf_columns
+
+    depth = (16 - leaves[:, 3]).astype(np.uint8)
+    side = 1 << (16 - depth.astype(np.int64))
+    low = (leaves[:, :3] * 8 + OFF).astype(np.uint16)  # leaves may overlap: fine for both
+    occ = data.draw(hnp.arrays(np.bool_, len(leaves)))
+    z_lo = data.draw(st.sampled_from([-math.inf, 0.05, 0.4, 1.0]))
+    z_hi = data.draw(st.sampled_from([math.inf, 1.2, 3.0]))
+    keys, states, runs = leaf_columns(low, depth, occ)
+    assert len(keys) == int((side * side).sum())
+    cubes = [
+        low[i] + np.indices((s, s, s), dtype=np.uint16).reshape(3, -1).T
+        for i, s in enumerate(side.tolist())
+    ]
+    full = np.concatenate(cubes)
+    full_occ = np.repeat(occ, side**3)
+    a = project_occupancy(keys, states, RES, z_min=z_lo, z_max=z_hi, runs=runs)
+    b = project_occupancy(full, full_occ, RES, z_min=z_lo, z_max=z_hi)
+    np.testing.assert_array_equal(a.data, b.data)
+    assert a.origin == b.origin
+    sa = column_stats(keys, states, RES, z_min=z_lo, z_max=z_hi, runs=runs)
+    sb = column_stats(full, full_occ, RES, z_min=z_lo, z_max=z_hi)
+    for name in ("count", "known", "max_z", "min_z", "mean_z"):
+        np.testing.assert_array_equal(getattr(sa, name), getattr(sb, name), err_msg=name)
+
+
+def test_leaf_columns_refuse_past_the_budget() -> None:
+    from scan2terrain.grids.projection import leaf_columns
+
+    keys = np.full((1, 3), OFF, dtype=np.uint16)
+    with pytest.raises(ValueError, match="65536 columns"):
+        leaf_columns(keys, np.array([8], dtype=np.uint8), np.array([False]), max_rows=1000)

@@ -11,6 +11,12 @@ the same voxels with the same ``bounds`` line up cell for cell.
 
 A z band ``[z_min, z_max]`` selects voxels by their *centre* height, as octomap_server's
 ``occupancy_min_z``/``occupancy_max_z`` do.
+
+Pruned trees: a ``.bt`` leaf above the voxel depth is a cube of ``s`` voxels a side (one free
+leaf of an octomap_server map can cover 256^3 = 16.7 M voxels). :func:`leaf_columns` turns
+each such cube into ``s x s`` vertical *runs* of ``s`` voxels, and the projections take
+``runs`` (the length of the run each key starts): every number they return is the one the
+expanded voxels would give, from ``s^2`` rows instead of ``s^3``.
 """
 
 from __future__ import annotations
@@ -40,10 +46,42 @@ class _Columns:
 
     flat: NDArray[np.intp]  # (M,) row * W + col; 0 for voxels outside the grid
     inside: NDArray[np.bool_] | None  # (M,) voxels inside the grid; None = all of them
-    kz: NDArray[np.uint16]  # (M,)
+    kz: NDArray[np.uint16]  # (M,) lowest z key of the run
+    top: NDArray[np.uint16]  # (M,) highest z key of the run (= kz for single voxels)
     occupied: NDArray[np.bool_]  # (M,)
     shape: tuple[int, int]
     origin: Pose2D
+
+
+def leaf_columns(
+    keys: NDArray[Any], depth: NDArray[Any], occupied: NDArray[Any], *, max_rows: int = 50_000_000
+) -> tuple[NDArray[np.uint16], NDArray[np.bool_], NDArray[np.uint16]]:
+    """Leaves of a pruned tree (lowest key (L, 3), tree depth (L,), state (L,)) as vertical runs:
+    ``(keys, occupied, runs)`` for the projections, ``s x s`` runs of ``s`` voxels per leaf of
+    side ``s = 2 ** (16 - depth)``. Raises ValueError past ``max_rows`` runs."""
+    keys = np.asarray(keys, dtype=np.uint16)
+    depth = np.asarray(depth)
+    occupied = np.asarray(occupied, dtype=np.bool_)
+    side = np.left_shift(1, 16 - depth.astype(np.int64))
+    total = int((side * side).sum())
+    if total > max_rows:
+        raise ValueError(f"the tree's {len(keys)} leaves make {total} columns, over {max_rows}")
+    out_keys, out_occ, out_runs = [], [], []
+    for s in np.unique(side).tolist():
+        pick = side == s
+        grid = np.indices((s, s), dtype=np.uint16).reshape(2, -1).T
+        k = np.repeat(keys[pick], s * s, axis=0)
+        k[:, :2] += np.tile(grid, (int(pick.sum()), 1))
+        out_keys.append(k)
+        out_occ.append(np.repeat(occupied[pick], s * s))
+        out_runs.append(np.full(len(k), s, dtype=np.uint16) if s < 65536 else None)
+    if any(r is None for r in out_runs):
+        raise ValueError("a leaf covers the whole key space")
+    return (
+        np.concatenate(out_keys),
+        np.concatenate(out_occ),
+        np.concatenate([r for r in out_runs if r is not None]),
+    )
 
 
 def _check_resolution(resolution: float) -> float:
@@ -94,9 +132,22 @@ def _key_range(lo_m: float, hi_m: float, res: float, name: str) -> tuple[int, in
 
 
 def _columns(
-    keys: NDArray[Any], occupied: NDArray[Any], res: float, bounds: Bounds | None
+    keys: NDArray[Any],
+    occupied: NDArray[Any],
+    res: float,
+    bounds: Bounds | None,
+    runs: NDArray[Any] | None = None,
 ) -> _Columns:
     keys16, occ = _check_voxels(keys, occupied)
+    top = keys16[:, 2]
+    if runs is not None:
+        runs = np.asarray(runs)
+        if runs.shape != (len(keys16),) or (len(runs) and int(runs.min()) < 1):
+            raise ValueError("runs must hold one length >= 1 per key")
+        top64 = keys16[:, 2].astype(np.int64) + runs - 1
+        if len(top64) and int(top64.max()) > _KEY_MAX:
+            raise ValueError(f"runs reach past z key {_KEY_MAX}")
+        top = top64.astype(np.uint16)
     kx = keys16[:, 0].astype(np.intp)
     ky = keys16[:, 1].astype(np.intp)
     inside: NDArray[np.bool_] | None = None
@@ -118,7 +169,7 @@ def _columns(
     if inside is not None:
         ky[~inside] = 0  # any valid cell: callers never let these voxels count
     origin = Pose2D((kx0 - KEY_OFFSET) * res, (ky0 - KEY_OFFSET) * res, 0.0)
-    return _Columns(ky, inside, keys16[:, 2], occ, (height, width), origin)
+    return _Columns(ky, inside, keys16[:, 2], top, occ, (height, width), origin)
 
 
 def _key_centres(res: float) -> NDArray[np.float64]:
@@ -126,12 +177,20 @@ def _key_centres(res: float) -> NDArray[np.float64]:
     return key_to_coord(np.arange(_KEY_MAX + 1), res)
 
 
-def _select(cols: _Columns, res: float, z_min: float, z_max: float) -> NDArray[np.bool_]:
-    """Voxels inside the grid whose centre z lies in [z_min, z_max]."""
+def _band_keys(res: float, z_min: float, z_max: float) -> tuple[int, int]:
+    """The lowest and highest z key whose voxel centre lies in [z_min, z_max] (lo > hi: none).
+    Centres grow with the key, so the keys in the band are one interval."""
     centres = _key_centres(res)
-    # A look-up on the 16-bit key is exact (same formula as the centre) and cheaper than
-    # computing M float heights.
-    sel: NDArray[np.bool_] = ((centres >= z_min) & (centres <= z_max))[cols.kz]
+    inside = np.flatnonzero((centres >= z_min) & (centres <= z_max))
+    if len(inside) == 0:
+        return 1, 0
+    return int(inside[0]), int(inside[-1])
+
+
+def _select(cols: _Columns, res: float, z_min: float, z_max: float) -> NDArray[np.bool_]:
+    """Voxels (runs) inside the grid with a voxel centre z in [z_min, z_max]."""
+    lo, hi = _band_keys(res, z_min, z_max)
+    sel: NDArray[np.bool_] = (cols.kz <= hi) & (cols.top >= lo)
     if cols.inside is not None:
         sel &= cols.inside
     return sel
@@ -145,6 +204,7 @@ def project_occupancy(
     z_min: float = -math.inf,
     z_max: float = math.inf,
     bounds: Bounds | None = None,
+    runs: NDArray[Any] | None = None,
 ) -> OccupancyGrid:
     """Project voxels onto a 2D occupancy grid, as octomap_server's projected map does.
 
@@ -167,6 +227,9 @@ def project_occupancy(
         without voxels are unknown. Without ``bounds`` the grid is the x/y bounding box of *all*
         voxels, not only those in the band, so that grids projected with different bands (and
         :func:`column_stats`) from the same voxels share one frame.
+    runs : integer array, shape (M,), optional
+        Each key starts a vertical run of this many voxels of its state (see
+        :func:`leaf_columns`); default one voxel each.
 
     Returns
     -------
@@ -181,7 +244,7 @@ def project_occupancy(
     """
     res = _check_resolution(resolution)
     _check_band(z_min, z_max)
-    cols = _columns(keys, occupied, res, bounds)
+    cols = _columns(keys, occupied, res, bounds, runs)
     sel = _select(cols, res, z_min, z_max)
     h, w = cols.shape
     # Rank each voxel 0 (outside band), 1 (free), 2 (occupied); a column takes its highest rank.
@@ -266,12 +329,14 @@ def column_stats(
     z_min: float = -math.inf,
     z_max: float = math.inf,
     bounds: Bounds | None = None,
+    runs: NDArray[Any] | None = None,
 ) -> ColumnStats:
     """Max, min, mean centre height and count of the occupied voxels in each column.
 
     Only occupied voxels whose centre z lies in ``[z_min, z_max]`` count; free voxels only
     widen the grid. The grid frame is chosen exactly as in :func:`project_occupancy` (bounding
-    box of all voxels, or ``bounds``), so the two grids line up cell for cell.
+    box of all voxels, or ``bounds``), so the two grids line up cell for cell; ``runs`` as
+    there (a run counts as its voxels inside the band).
 
     Raises
     ------
@@ -280,22 +345,27 @@ def column_stats(
     """
     res = _check_resolution(resolution)
     _check_band(z_min, z_max)
-    cols = _columns(keys, occupied, res, bounds)
+    cols = _columns(keys, occupied, res, bounds, runs)
     sel = _select(cols, res, z_min, z_max)
     sel &= cols.occupied
     flat = cols.flat[sel]
-    kz = cols.kz[sel]
+    lo_band, hi_band = _band_keys(res, z_min, z_max)
+    # Each run clipped to the band: keys lo..hi, all inside it.
+    lo = np.maximum(cols.kz[sel], lo_band).astype(np.int64)
+    hi = np.minimum(cols.top[sel], hi_band).astype(np.int64)
+    length = hi - lo + 1
     h, w = cols.shape
     n = h * w
-    count = np.bincount(flat, minlength=n)
+    count = np.bincount(flat, weights=length, minlength=n).astype(np.int64)
     known = count > 0
     # Work on the integer keys: the centre is monotonic in the key, so the extreme centre is the
-    # centre of the extreme key, and the sums stay exact (65535 * 2**37 < 2**53).
+    # centre of the extreme key, and the sums stay exact (a run's key sum is (lo + hi) * length
+    # / 2, an integer; 65535 * 2**37 < 2**53).
     kmax = np.zeros(n, dtype=np.uint16)
     kmin = np.full(n, _KEY_MAX, dtype=np.uint16)
-    np.maximum.at(kmax, flat, kz)
-    np.minimum.at(kmin, flat, kz)
-    ksum = np.bincount(flat, weights=kz, minlength=n)
+    np.maximum.at(kmax, flat, hi.astype(np.uint16))
+    np.minimum.at(kmin, flat, lo.astype(np.uint16))
+    ksum = np.bincount(flat, weights=(lo + hi) * length // 2, minlength=n)
     centres = _key_centres(res)
 
     def grid(values: NDArray[np.float64]) -> NDArray[np.float32]:
