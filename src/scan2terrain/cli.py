@@ -20,6 +20,7 @@ from scan2terrain.config import (
     HEIGHT_STATS,
     SIMULATORS,
     UNKNOWN_POLICIES,
+    load_config,
 )
 
 EXAMPLES = r"""
@@ -42,14 +43,8 @@ COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
-def _common(p: argparse.ArgumentParser, command: str = "") -> None:
-    """Options every world command takes; the defaults in their help are that command's own
-    (``COMMAND_DEFAULTS``), so ``--help`` says what the command really uses."""
-    own = COMMAND_DEFAULTS.get(command, {})
-
-    def default(key: str, value: object) -> object:
-        return own.get(key, value)
-
+def _common(p: argparse.ArgumentParser) -> None:
+    """Options every world command takes (their defaults are added by :func:`_state_defaults`)."""
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--config", type=Path, help="YAML config file (see configs/); flags override it")
@@ -58,8 +53,7 @@ def _common(p: argparse.ArgumentParser, command: str = "") -> None:
         "--simulator",
         choices=SIMULATORS,
         dest="world.simulator",
-        help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both "
-        f"(default: {default('world.simulator', 'both')})",
+        help="gz-sim (SDF 1.9), Gazebo Classic (SDF 1.6) or both",
     )
     g.add_argument(
         "--model-name",
@@ -77,26 +71,33 @@ def _common(p: argparse.ArgumentParser, command: str = "") -> None:
         "--height",
         type=float,
         dest="terrain.height",
-        help="metres: wall height (maps) or height of white (images) (default 2.0)",
+        help="metres: wall height (maps) or height of white (images)",
     )
     t.add_argument(
         "--upsample",
         type=int,
         dest="terrain.upsample",
-        help="integer factor: each cell becomes k x k pixels (default 1)",
+        help="integer factor: each cell becomes k x k pixels",
     )
     t.add_argument(
         "--bit-depth",
         type=int,
         choices=(8, 16),
         dest="terrain.bit_depth",
-        help="heightmap PNG depth; 16 needs gz-sim Garden or newer "
-        f"(default {default('terrain.bit_depth', 8)})",
+        help="heightmap PNG depth; 16 needs gz-sim Garden or newer",
     )
     c = p.add_argument_group("canvas (the paper's options, in cells)")
-    c.add_argument("--width", type=int, dest="canvas.width", help="crop or extend to this width")
     c.add_argument(
-        "--canvas-height", type=int, dest="canvas.height", help="crop or extend to this height"
+        "--width",
+        type=int,
+        dest="canvas.width",
+        help="crop or extend to this width (default: the input's)",
+    )
+    c.add_argument(
+        "--canvas-height",
+        type=int,
+        dest="canvas.height",
+        help="crop or extend to this height (default: the input's)",
     )
     c.add_argument(
         "--offset-x",
@@ -123,8 +124,7 @@ def _common(p: argparse.ArgumentParser, command: str = "") -> None:
         choices=FILTERS,
         dest="filter.kind",
         help="paper = the paper's modified median (keeps horizontal/vertical runs of 3);"
-        " thin_wall = it, also keeping diagonal walls "
-        f"(default {default('filter.kind', 'thin_wall')})",
+        " thin_wall = it, also keeping diagonal walls",
     )
     f.add_argument(
         "--no-filter",
@@ -137,13 +137,13 @@ def _common(p: argparse.ArgumentParser, command: str = "") -> None:
         "--filter-size",
         type=int,
         dest="filter.size",
-        help="window side for median/majority (odd, default 3)",
+        help="window side for median/majority (odd)",
     )
     f.add_argument(
         "--speckle-min-cells",
         type=int,
         dest="filter.speckle_min_cells",
-        help="remove occupied specks smaller than this many cells (default off)",
+        help="remove occupied specks smaller than this many cells (0: off)",
     )
     o = p.add_argument_group("output")
     o.add_argument(
@@ -154,7 +154,7 @@ def _common(p: argparse.ArgumentParser, command: str = "") -> None:
         help="do not write preview.png",
     )
     o.add_argument(
-        "--max-pixels", type=int, dest="max_pixels", help="refuse larger images (default 2^28)"
+        "--max-pixels", type=int, dest="max_pixels", help="refuse larger images and grids"
     )
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
@@ -169,7 +169,7 @@ def _geometry_options(p: argparse.ArgumentParser) -> None:
         dest="world.geometry",
         help="how occupied cells become walls: one extruded mesh (STL/DAE/OBJ; exact, and the "
         "fastest in physics), the fewest boxes that cover them, SDF polylines, or a heightmap "
-        "(slowest; 1-cell walls are knife edges); default auto: mesh for occupancy grids, "
+        "(slowest; 1-cell walls are knife edges); auto: mesh for occupancy grids, "
         "heightmap for height grids; map frame = world frame in both simulators for all but "
         "heightmap (README: which geometry to pick)",
     )
@@ -178,7 +178,7 @@ def _geometry_options(p: argparse.ArgumentParser) -> None:
         type=float,
         dest="world.simplify",
         help="metres: straighten mesh/polyline outlines within this tolerance, keeping every "
-        "cell on its side (default 0: cell edges)",
+        "cell on its side (0: cell edges)",
     )
 
 
@@ -222,9 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument("image", type=Path, help="image file")
     _common(i)
-    i.add_argument(
-        "--resolution", type=float, dest="image.resolution", help="metres per pixel (default 0.05)"
-    )
+    i.add_argument("--resolution", type=float, dest="image.resolution", help="metres per pixel")
     i.add_argument(
         "--origin",
         type=float,
@@ -253,7 +251,32 @@ def build_parser() -> argparse.ArgumentParser:
     _progress_option(t)
     _bag_commands(sub)
     _dem_command(sub)
+    _state_defaults(sub)
     return parser
+
+
+def _state_defaults(sub: Any) -> None:
+    """Append ``(default: X)`` to the help of every option that sets a config value, X being
+    that command's effective default (the config's, after its ``COMMAND_DEFAULTS``): one
+    source, so help cannot drift from behaviour. Options whose default is None say in their
+    own words what happens without them."""
+    for command, parser in sub.choices.items():
+        cfg = load_config(None, {}, defaults=COMMAND_DEFAULTS.get(command))
+        for action in parser._actions:
+            if not ("." in action.dest or action.dest == "max_pixels"):
+                continue
+            if isinstance(action, argparse._StoreConstAction) or action.help is None:
+                continue
+            value: Any = cfg
+            for part in action.dest.split("."):
+                value = getattr(value, part)
+            if value is not None:
+                action.help = f"{action.help} (default: {_shown(value)})"
+
+
+def _shown(value: object) -> str:
+    power = isinstance(value, int) and value >= 1 << 20 and value & (value - 1) == 0
+    return f"2^{value.bit_length() - 1}" if power and isinstance(value, int) else str(value)
 
 
 def _unknown_options(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
@@ -262,13 +285,13 @@ def _unknown_options(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> No
         "--unknown",
         choices=UNKNOWN_POLICIES,
         dest="terrain.unknown",
-        help="unknown cells as floor, as walls, or at --unknown-height (default free)",
+        help="unknown cells as floor, as walls, or at --unknown-height",
     )
     p.add_argument(
         "--unknown-height",
         type=float,
         dest="terrain.unknown_height",
-        help="metres, for --unknown height (default 0.5)",
+        help="metres, for --unknown height",
     )
 
 
@@ -278,45 +301,45 @@ def _octree_options(p: argparse.ArgumentParser) -> None:
         "--resolution",
         type=float,
         dest="octree.resolution",
-        help="voxel side in metres for scan input (default 0.05)",
+        help="voxel side in metres for scan input",
     )
     t.add_argument(
         "--max-range",
         type=float,
         dest="octree.max_range",
-        help="metres; longer beams are cut there and only clear (default: unlimited)",
+        help="metres; longer beams are cut there and only clear (< 0: unlimited)",
     )
     t.add_argument(
         "--z-min",
         type=float,
         dest="octree.z_min",
-        help="lowest voxel centre (metres) that counts for the 2D grid",
+        help="lowest voxel centre (metres) that counts for the 2D grid (default: no limit)",
     )
     t.add_argument(
         "--z-max",
         type=float,
         dest="octree.z_max",
-        help="highest voxel centre (metres) that counts for the 2D grid",
+        help="highest voxel centre (metres) that counts for the 2D grid (default: no limit)",
     )
     t.add_argument(
         "--grid",
         choices=("occupancy", "height"),
         dest="octree.grid",
-        help="occupancy (octomap_server's projection, default) or height (2.5D)",
+        help="occupancy (octomap_server's projection) or height (2.5D)",
     )
     _unknown_options(t)
     t.add_argument(
         "--height-stat",
         choices=HEIGHT_STATS,
         dest="octree.height_stat",
-        help="--grid height: each column's highest, lowest or mean occupied z (default max)",
+        help="--grid height: each column's highest, lowest or mean occupied z",
     )
     t.add_argument(
         "--fill",
         choices=FILLS,
         dest="octree.fill",
         help="--grid height: fill empty columns from the nearest known one, by inverse "
-        "distance weighting, or not (default nearest)",
+        "distance weighting, or not",
     )
     t.add_argument(
         "--fill-max-distance",
@@ -351,14 +374,14 @@ def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
             "--start",
             type=float,
             dest="scans.start",
-            help="seconds from the bag's start, or absolute UNIX seconds",
+            help="seconds from the bag's start, or absolute UNIX seconds (default: the start)",
         )
-        s.add_argument("--end", type=float, dest="scans.end", help="as --start")
+        s.add_argument("--end", type=float, dest="scans.end", help="as --start (default: the end)")
         s.add_argument(
             "--poses",
             choices=("auto", "tf", "odom", "trajectory", "fixed"),
             dest="scans.poses",
-            help="where scan poses come from (default auto: tf, else odometry)",
+            help="where scan poses come from (auto: tf, else odometry)",
         )
         s.add_argument(
             "--fixed-frame",
@@ -366,12 +389,14 @@ def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
             help="frame to build the world in (default: map if present, else odom)",
         )
         s.add_argument(
-            "--odom-topic", dest="scans.odom_topic", help="nav_msgs/Odometry topic (poses odom)"
+            "--odom-topic",
+            dest="scans.odom_topic",
+            help="nav_msgs/Odometry topic (poses odom; default: the only one)",
         )
         s.add_argument(
             "--trajectory",
             dest="scans.trajectory",
-            help="TUM trajectory file of the robot base (t x y z qx qy qz qw)",
+            help="TUM trajectory file of the robot base (t x y z qx qy qz qw; default: none)",
         )
         s.add_argument(
             "--mount",
@@ -386,7 +411,7 @@ def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
             "--max-gap",
             type=float,
             dest="scans.max_gap",
-            help="longest tf/odometry gap, seconds, to interpolate across (default 1)",
+            help="longest tf/odometry gap, seconds, to interpolate across",
         )
     else:
         s.add_argument(
@@ -402,14 +427,14 @@ def _scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
         nargs=6,
         metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
         dest="scans.pose",
-        help="a stationary sensor's pose in the fixed frame (metres, radians)",
+        help="a stationary sensor's pose in the fixed frame (metres, radians; default: none)",
     )
     s.add_argument(
         "--insert",
         choices=("auto", "raycast", "endpoints"),
         dest="scans.insert",
         help="raycast: free space too (OctoMap's insertPointCloud); endpoints: hits only, fast "
-        "(default: raycast for bags, endpoints for cloud files)",
+        "(auto: raycast for bags, endpoints for cloud files)",
     )
 
 
@@ -483,7 +508,11 @@ def _bag_commands(sub: Any) -> None:
     v.add_argument("--config", type=Path, help="YAML config file; flags override it")
     _scan_options(v, bag=True)
     v.add_argument(
-        "--las-classes", type=int, nargs="+", dest="scans.las_classes", help="LAS classes to keep"
+        "--las-classes",
+        type=int,
+        nargs="+",
+        dest="scans.las_classes",
+        help="LAS classes to keep (default: all)",
     )
     v.add_argument(
         "--max-range", type=float, dest="octree.max_range", help="drop bag hits beyond (m)"
@@ -536,22 +565,22 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
         "--scheduler",
         dest="stream.scheduler",
         metavar="ADDRESS",
-        help="run the streamed work on an existing Dask cluster (tcp://HOST:8786); its workers "
-        "must reach the input paths",
+        help="run the streamed work on an existing Dask cluster (tcp://HOST:8786; default: "
+        "none); its workers must reach the input paths",
     )
     g.add_argument(
         "--chunk-points",
         type=int,
         dest="stream.chunk_points",
         metavar="N",
-        help="points read at a time (default 2000000)",
+        help="points read at a time",
     )
     g.add_argument(
         "--tile-cells",
         type=int,
         dest="stream.tile_cells",
         metavar="N",
-        help="grid tile side in cells, a power of two (default 256)",
+        help="grid tile side in cells, a power of two",
     )
 
 
@@ -586,7 +615,7 @@ def _dem_command(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
-    _common(d, "dem2world")
+    _common(d)
     g = d.add_argument_group("elevation model")
     g.add_argument(
         "--resolution",
