@@ -317,7 +317,7 @@ def truncated(src: Path, tmp_path: Path, keep: int) -> Path:
         (lambda t: truncated(SIMPLE_LAS, t, 20_000), "truncated LAS file: 1065 points of 34"),
         (lambda t: truncated(SIMPLE_LAS, t, 227 + 1000 * 34), "truncated LAS file"),
         (lambda t: truncated(SIMPLE_LAS, t, 100), "cannot read as LAS/LAZ"),
-        (lambda t: truncated(SIMPLE_LAZ, t, 9000), "cannot read as LAS/LAZ"),
+        (lambda t: truncated(SIMPLE_LAZ, t, 9000), "truncated or corrupt LAZ file: its chunk"),
         (lambda t: truncated(AUTZEN_CSV, t, 33), "no finite point in the cloud \\(no points\\)"),
     ],
 )

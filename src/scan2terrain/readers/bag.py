@@ -351,8 +351,16 @@ def _explain(exc: BaseException, *, reading: bool = False) -> str:
 
     ``reading``: raised while streaming messages, after the bag opened fine.
     """
-    text = " ".join(str(a) for a in exc.args) if exc.args else ""
-    text = text.strip().rstrip(".") or type(exc).__name__
+    if isinstance(exc, MemoryError):  # a length field read as gigabytes
+        return (
+            "the bag is damaged: a record claims more bytes than can be allocated (a corrupt "
+            "length field)"
+        )
+    if isinstance(exc, UnicodeError):  # its args hold the whole undecodable bytes
+        text = str(exc)
+    else:
+        text = " ".join(str(a) for a in exc.args) if exc.args else ""
+    text = _one_line(text).rstrip(".") or type(exc).__name__
     low = text.lower()
     if "index looks damaged" in low or "not indexed" in low or "header could not be read" in low:
         return (
@@ -369,6 +377,12 @@ def _explain(exc: BaseException, *, reading: bool = False) -> str:
             "the file is damaged or truncated"
         )
     return f"cannot read the bag: {text} ({type(exc).__name__})"
+
+
+def _one_line(text: str, limit: int = 200) -> str:
+    """A library's message as one short line (rosbags quotes whole message definitions)."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 # --- the bag --------------------------------------------------------------------------------------
@@ -583,7 +597,7 @@ class Bag:
                 raise InputError(
                     self._owner([conn]),
                     f"message on {conn.topic} at {(t_ns - self.start_ns) / 1e9:.3f} s cannot be "
-                    f"decoded as {conn.msgtype} ({exc or type(exc).__name__})",
+                    f"decoded as {conn.msgtype} ({_one_line(str(exc)) or type(exc).__name__})",
                 ) from None
             yield conn.topic, int(t_ns), msg
 
@@ -661,7 +675,7 @@ def _undecodable(typestore: Typestore, msgtype: str) -> str | None:
             return f"message type {msgtype} has no definition in the bag nor in ROS 2 Humble"
         return f"the definition of {msgtype} needs {missing}, which is not defined"
     except Exception as exc:  # rosbags' code generator rejecting a definition
-        return f"the definition of {msgtype} cannot be used ({exc})"
+        return f"the definition of {msgtype} cannot be used ({_one_line(str(exc))})"
     return None
 
 

@@ -16,7 +16,12 @@ Which library reads what, and why:
   without one the first three columns are x, y, z. Open3D skips unreadable lines silently and
   reads neither ``.txt`` nor ``.csv``.
 * ``.las .laz``: laspy (LAZ through its lazrs backend), read chunk by chunk; coordinates are the
-  scaled float64 ``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32).
+  scaled float64 ``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32). Before laspy
+  opens a file its header and (LAZ) chunk table are checked here against the file's size, from
+  the raw bytes: laspy reads VLRs by a count and lazrs allocates a chunk table by another, and a
+  corrupt count made them take all memory or abort the process (a Rust allocation failure is
+  not an exception). A Rust panic in lazrs (pyo3's ``PanicException``, a ``BaseException``) is
+  caught too and refused like any corrupt file.
 
 Points are returned as the file stores them (no ``VIEWPOINT`` or CRS applied, as PCL and Open3D
 do); every problem is an :class:`InputError` naming the file.
@@ -26,12 +31,18 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
+import os
 import re
+import struct
+import sys
+import tempfile
+import threading
 import warnings
-from collections.abc import Collection, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +87,10 @@ _PLY_TYPES = {
     "float64": "f8",
 }
 _XYZ = ("x", "y", "z")
+# laspy logs a backend it could not build (a corrupt LAZ) before raising; library code never
+# prints, and without a handler Python's last resort would print it to stderr.
+logging.getLogger("laspy").addHandler(logging.NullHandler())
+_FD2_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -274,10 +289,16 @@ class _Element:
     name: str
     count: int
     props: list[tuple[str, str | None]]  # (name, numpy code), None for a list property
+    lists: list[str] = field(default_factory=list)  # numpy code of each list's length
 
     @property
     def fixed(self) -> bool:
         return all(code is not None for _, code in self.props)
+
+    @property
+    def min_row(self) -> int:
+        """Bytes of a binary row whose lists are all empty."""
+        return _row_size(self) + sum(np.dtype(code).itemsize for code in self.lists)
 
 
 def _read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
@@ -288,10 +309,19 @@ def _read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
     names = [p for p, _ in vertex.props]
     if not vertex.fixed or not all(e.fixed for e in before):
         # Rows of varying length: Open3D (RPly) walks them.
+        _check_ply_rows(path, fmt, raw, start, [*before, vertex])
         return _open3d_points(path, vertex.count), f"ply {fmt}"
     if fmt == "ascii":
         cols = [names.index(a) for a in _XYZ]
         skip = sum(e.count for e in before)  # one line per item of each earlier element
+        lines = raw.count(b"\n", start) + (not raw.endswith(b"\n"))
+        if lines < skip + vertex.count:  # before numpy sizes its table by the header's count
+            after = f" after {skip} rows of earlier elements" if skip else ""
+            raise InputError(
+                path,
+                f"truncated: PLY header says {vertex.count} vertices, the data has "
+                f"{max(lines - skip, 0)} lines{after}",
+            )
         text = _decode(path, raw[start:])
         pts = _loadtxt(
             path,
@@ -343,7 +373,11 @@ def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
             elif words[0] == "element":
                 elements.append(_Element(words[1], int(words[2]), []))
             elif words[0] == "property" and words[1] == "list":
+                length, _ = _PLY_TYPES[words[2]], _PLY_TYPES[words[3]]
+                if np.dtype(length).kind not in "iu":
+                    raise ValueError
                 elements[-1].props.append((words[4], None))
+                elements[-1].lists.append(length)
             elif words[0] == "property":
                 elements[-1].props.append((words[2], _PLY_TYPES[words[1]]))
             else:
@@ -368,6 +402,31 @@ def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
 
 def _row_size(element: _Element) -> int:
     return sum(np.dtype(code).itemsize for _, code in element.props if code is not None)
+
+
+def _check_ply_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Element]) -> None:
+    """Refuse PLY data too short for its elements' counts even with every list empty, before
+    Open3D (RPly) reads it: it keeps the rows it could not read as uninitialised points."""
+    if fmt == "ascii":  # one number per property, at least (a list's length)
+        need = sum(e.count * len(e.props) for e in elements)
+        have, unit = _count_words(raw, start), "numbers"
+    else:
+        need = sum(e.count * e.min_row for e in elements)
+        have, unit = len(raw) - start, "bytes"
+    if have < need:
+        raise InputError(
+            path,
+            f"truncated: the PLY header's {elements[-1].count} vertices need at least {need} "
+            f"{unit} of data, the file has {have}",
+        )
+
+
+def _count_words(data: bytes, start: int) -> int:
+    """Whitespace-separated words in ``data[start:]`` (numpy over the bytes, no Python loop)."""
+    view = np.frombuffer(data, dtype=np.uint8, offset=start)
+    space = np.isin(view, np.frombuffer(b" \t\n\r\v\f", dtype=np.uint8))
+    starts = np.count_nonzero(space[:-1] & ~space[1:])
+    return int(starts) + int(view.size > 0 and not space[0])
 
 
 # --- text -----------------------------------------------------------------------------------
@@ -488,23 +547,17 @@ def _loadtxt(
 def _read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np.float64], str]:
     import laspy  # type: ignore[import-untyped]
 
-    size = path.stat().st_size
     parts: list[NDArray[np.float64]] = []
     present: set[int] = set()
     seen = 0
+    with path.open("rb") as raw:
+        _check_las_layout(raw, path.stat().st_size, path, decode=(0, None))
     try:
         with laspy.open(path) as reader:
             header = reader.header
             n = int(header.point_count)
             version = f"{header.version.major}.{header.version.minor}"
             fmt = f"{path.suffix.lower()[1:]} {version} point format {header.point_format.id}"
-            if not header.are_points_compressed:
-                step = int(header.point_format.size)
-                need = int(header.offset_to_point_data) + n * step
-                if size < need:
-                    raise _Truncated(
-                        f"{n} points of {step} bytes need {need} bytes, the file has {size}"
-                    )
             for chunk in reader.chunk_iterator(LAS_CHUNK):
                 seen += len(chunk)
                 xyz = _xyz(chunk)
@@ -513,11 +566,13 @@ def _read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np
                     present.update(np.unique(codes).tolist())
                     xyz = xyz[np.isin(codes, classes)]
                 parts.append(xyz)
-    except _Truncated as exc:
-        raise InputError(path, f"truncated LAS file: {exc}") from None
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError) as exc:
         # lazrs raises LazrsError (a RuntimeError) for corrupt or truncated LAZ data.
         raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from None
+    except BaseException as exc:
+        if not _is_panic(exc):
+            raise
+        raise _panic_error(path, exc) from None
     if seen != n:
         raise InputError(path, f"truncated LAS file: the header says {n} points, read {seen}")
     points = np.concatenate(parts) if parts else np.zeros((0, 3))
@@ -530,8 +585,278 @@ def _read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np
     return points, fmt
 
 
-class _Truncated(Exception):
-    pass
+# LAS 1.0-1.4 "public header block" and LAZ (LASzip) layout: the laszip VLR, then at the start
+# of the point data an int64 offset to the chunk table (-1 or 0: the writer could not seek back
+# and put it in the file's last 8 bytes), and there uint32 version 0, uint32 number of chunks and
+# the arithmetic-coded entries (byte counts; point counts too for variable-size chunks).
+_LAS_HEADER_MIN = 227  # LAS 1.0-1.2
+_LAS14_HEADER = 375
+_VLR_HEADER = 54
+_EVLR_HEADER = 60
+_LASZIP_VLR = (b"laszip encoded", 22204)  # user id, record id
+_LASZIP_FIXED = 34  # payload bytes before its item records (6 bytes each)
+_VARIABLE_CHUNKS = 0xFFFFFFFF
+_CHUNKED = (2, 3)  # the laszip VLR's compressor: pointwise chunked, layered chunked
+#: Points a byte of LAZ data can hold at most. LASzip packs about 150 identical points into a
+#: byte; a header claiming hundreds of times more is corrupt, and would be planned by.
+_LAZ_POINTS_PER_BYTE = 1 << 16
+
+
+def _check_las_layout(
+    f: BinaryIO, size: int, where: Path | str, *, decode: tuple[int, int | None] | None
+) -> None:
+    """Refuse a LAS/LAZ file whose header counts and offsets (and LAZ chunk table) do not fit
+    in its ``size`` bytes, reading a few raw bytes from ``f`` (left at an arbitrary position).
+
+    Done before laspy reads the header (it reads VLRs and EVLRs by the header's counts and
+    lengths) and before lazrs decodes (it allocates the chunk table by its count: 2^32 chunks
+    made it abort the process). ``decode``: the points ``[start, stop)`` (stop None: to the
+    end) about to be decoded, whose LAZ chunks' layer sizes are checked too; None: none. A file
+    that is no LAS file at all is left to laspy to name.
+    """
+    head = _read_at(f, 0, _LAS14_HEADER)
+    if len(head) < _LAS_HEADER_MIN or not head.startswith(b"LASF"):
+        return
+    header_size, start, n_vlrs, format_id, record, count = struct.unpack_from("<HIIBHI", head, 94)
+    first_evlr = n_evlrs = 0
+    if head[25] >= 4 and len(head) >= _LAS14_HEADER:  # LAS 1.4: 64-bit count, EVLRs
+        first_evlr, n_evlrs, count = struct.unpack_from("<QIQ", head, 235)
+    if start > size:
+        raise InputError(
+            where, f"truncated LAS file: its points start at byte {start}, the file has {size}"
+        )
+    if header_size <= start and n_vlrs * _VLR_HEADER > start - header_size:
+        raise InputError(
+            where,
+            f"corrupt LAS header: {n_vlrs:,} VLRs cannot fit in the {start - header_size} bytes "
+            "between the header and the points",
+        )
+    if n_evlrs:
+        _check_evlrs(f, size, first_evlr, n_evlrs, where)
+    if format_id & 0xC0 != 0x80:  # not compressed (laspy's rule: bit 7 set, bit 6 clear)
+        need = start + count * record
+        if size < need:
+            raise InputError(
+                where,
+                f"truncated LAS file: {count} points of {record} bytes need {need} bytes, "
+                f"the file has {size}",
+            )
+        return
+    if count and header_size <= start:
+        laszip = _laszip_payload(_read_at(f, header_size, start - header_size), n_vlrs)
+        if laszip is not None:
+            _check_laz(
+                f, size, laszip, start=start, record=record, count=count, where=where, decode=decode
+            )
+
+
+def _check_evlrs(f: BinaryIO, size: int, first: int, n: int, where: Path | str) -> None:
+    if first + n * _EVLR_HEADER > size:
+        raise InputError(
+            where,
+            f"corrupt LAS header: {n:,} extended VLRs from byte {first} cannot fit in the file "
+            f"({size} bytes)",
+        )
+    pos = first
+    for _ in range(n):  # a loop over the file's few EVLRs, each 60 bytes at least
+        raw = _read_at(f, pos, _EVLR_HEADER)
+        pos += _EVLR_HEADER + (struct.unpack_from("<Q", raw, 20)[0] if len(raw) == 60 else size)
+        if pos > size:
+            raise InputError(
+                where, f"truncated LAS file: its extended VLRs run past the end ({size} bytes)"
+            )
+
+
+def _laszip_payload(vlrs: bytes, n: int) -> bytes | None:
+    """The laszip VLR's data among the ``n`` VLRs in ``vlrs``, or None (laspy refuses then)."""
+    pos = 0
+    for _ in range(n):  # a loop over the header's few VLRs
+        if pos + _VLR_HEADER > len(vlrs):
+            return None
+        user, record_id, length = struct.unpack_from("<16sHH", vlrs, pos + 2)
+        if (user.rstrip(b"\0"), record_id) == _LASZIP_VLR:
+            return vlrs[pos + _VLR_HEADER : pos + _VLR_HEADER + length]
+        pos += _VLR_HEADER + length
+    return None
+
+
+def _check_laz(
+    f: BinaryIO,
+    size: int,
+    laszip: bytes,
+    *,
+    start: int,
+    record: int,
+    count: int,
+    where: Path | str,
+    decode: tuple[int, int | None] | None,
+) -> None:
+    """The chunk table against the header's point count and the file's size (LAZ, count > 0),
+    and the layer sizes of the chunks holding the points to ``decode``."""
+
+    def corrupt(problem: str) -> InputError:
+        return InputError(where, f"corrupt LAZ file: {problem}")
+
+    if len(laszip) < _LASZIP_FIXED:
+        raise corrupt(f"its laszip VLR has {len(laszip)} bytes, fewer than {_LASZIP_FIXED}")
+    chunk_size = struct.unpack_from("<I", laszip, 12)[0]
+    n_items = struct.unpack_from("<H", laszip, 32)[0]
+    if len(laszip) < _LASZIP_FIXED + 6 * n_items:
+        raise corrupt(f"its laszip VLR lists {n_items} items in {len(laszip)} bytes")
+    item_size = sum(
+        struct.unpack_from("<H", laszip, _LASZIP_FIXED + 6 * i + 2)[0] for i in range(n_items)
+    )
+    if item_size != record:
+        raise corrupt(
+            f"its laszip VLR describes {item_size}-byte points, the header {record}-byte ones"
+        )
+    if struct.unpack_from("<H", laszip, 0)[0] not in _CHUNKED:
+        return  # pointwise LAZ (LASzip 1.x) has no chunk table; lazrs refuses other values
+    if chunk_size == 0:
+        raise corrupt("its laszip VLR has a chunk size of 0 points")
+    data_start = start + 8
+    if size < data_start:
+        raise InputError(
+            where,
+            f"truncated LAZ file: it ends at byte {size}, before its compressed points start "
+            f"(byte {data_start})",
+        )
+    table = struct.unpack("<q", _read_at(f, start, 8))[0]
+    if table <= start:  # the writer could not seek back: the offset ends the file
+        table = struct.unpack("<q", _read_at(f, size - 8, 8))[0]
+    if table <= start:
+        raise InputError(
+            where, "truncated or corrupt LAZ file: it has no chunk table (an unfinished write?)"
+        )
+    if not data_start <= table <= size - 8:
+        raise InputError(
+            where,
+            f"truncated or corrupt LAZ file: its chunk table offset {table} lies outside the "
+            f"compressed data (bytes {data_start}..{size})",
+        )
+    data = table - data_start
+    version, chunks = struct.unpack("<II", _read_at(f, table, 8))
+    if version != 0:
+        raise corrupt(f"unknown chunk table version {version} (LASzip writes 0)")
+    if chunk_size != _VARIABLE_CHUNKS:
+        expected = -(-count // chunk_size)
+        if chunks != expected:
+            raise corrupt(
+                f"its chunk table lists {chunks:,} chunks, {count:,} points in chunks of "
+                f"{chunk_size:,} make {expected:,}"
+            )
+    elif not 1 <= chunks <= count:
+        raise corrupt(f"its chunk table lists {chunks:,} chunks for {count:,} points")
+    if chunks * item_size > data:  # each chunk starts with a raw point
+        raise corrupt(f"{chunks:,} chunks cannot fit in {data:,} bytes of compressed points")
+    if count > data * _LAZ_POINTS_PER_BYTE:
+        raise corrupt(
+            f"the header says {count:,} points, more than {data:,} bytes of LAZ data can hold"
+        )
+    entries = _laz_chunk_table(f, start, laszip, where)
+    if sum(b for _, b in entries) != data:
+        raise corrupt(
+            f"its chunk table's byte counts add up to {sum(b for _, b in entries):,}, the "
+            f"compressed points take {data:,}"
+        )
+    if chunk_size == _VARIABLE_CHUNKS and sum(p for p, _ in entries) != count:
+        raise corrupt(
+            f"its chunk table's point counts add up to {sum(p for p, _ in entries):,}, the "
+            f"header says {count:,}"
+        )
+    layers = _layer_count(laszip, n_items)
+    if layers and decode is not None:
+        _check_layers(
+            f,
+            entries,
+            data_start=data_start,
+            record=record,
+            layers=layers,
+            decode=decode,
+            corrupt=corrupt,
+        )
+
+
+#: Layers per item of a LASzip layered chunk (point formats 6-10, item version 3), by item type:
+#: POINT14 (10) 9 (x/y/returns, z, classification, flags, intensity, scan angle, user data,
+#: point source, GPS time), RGB14 (11) 1, RGBNIR14 (12) 2, WAVEPACKET14 (13) 1; BYTE14 (14)
+#: has one per byte.
+_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+_BYTE14 = 14
+
+
+def _layer_count(laszip: bytes, n_items: int) -> int:
+    """Layer sizes at the start of each chunk (after its raw first point and point count); 0
+    for pointwise chunks (and items lazrs does not decode layered, which it refuses)."""
+    layers = 0
+    for i in range(n_items):
+        kind, item_size, version = struct.unpack_from("<HHH", laszip, _LASZIP_FIXED + 6 * i)
+        if version != 3:
+            return 0
+        layers += item_size if kind == _BYTE14 else _LAYERS.get(kind, 0)
+    return layers
+
+
+def _check_layers(
+    f: BinaryIO,
+    entries: list[tuple[int, int]],
+    *,
+    data_start: int,
+    record: int,
+    layers: int,
+    decode: tuple[int, int | None],
+    corrupt: Callable[[str], InputError],
+) -> None:
+    """Each layered chunk holding points of ``decode`` starts with a raw point, a point count
+    and ``layers`` uint32 layer sizes, which lazrs allocates by (4 GB for a corrupt one, which
+    aborts the process where that much cannot be had): they must fit in the chunk. A read of a
+    few dozen bytes per chunk, one chunk per 50,000 points (LASzip's default)."""
+    first, stop = decode
+    header = record + 4 + 4 * layers
+    pos, done = data_start, 0  # chunk i starts at pos, after `done` points
+    for i, (points, nbytes) in enumerate(entries):  # a loop over chunks, not points
+        if (stop is None or done < stop) and done + points > first:
+            raw = _read_at(f, pos + record + 4, 4 * layers)
+            if len(raw) < 4 * layers:
+                raise corrupt(f"chunk {i} is cut short")
+            claimed = sum(struct.unpack(f"<{layers}I", raw))
+            if header + claimed > nbytes:
+                raise corrupt(f"chunk {i} ({nbytes:,} bytes) has layers of {claimed:,} bytes")
+        pos += nbytes
+        done += points
+
+
+def _laz_chunk_table(
+    f: BinaryIO, start: int, laszip: bytes, where: Path | str
+) -> list[tuple[int, int]]:
+    """(points, bytes) per chunk, read by lazrs (its number of chunks already checked)."""
+    import lazrs  # type: ignore[import-untyped]
+
+    f.seek(start)
+    try:
+        entries = lazrs.read_chunk_table(f, lazrs.LazVlr(laszip))
+    except lazrs.LazrsError as exc:
+        raise InputError(where, f"corrupt LAZ file: cannot read its chunk table ({exc})") from None
+    except BaseException as exc:
+        if not _is_panic(exc):
+            raise
+        raise _panic_error(where, exc) from None
+    return [(int(p), int(b)) for p, b in entries]
+
+
+def _read_at(f: BinaryIO, offset: int, n: int) -> bytes:
+    f.seek(offset)
+    return bytes(f.read(n))
+
+
+def _is_panic(exc: BaseException) -> bool:
+    """A Rust panic in lazrs: pyo3's PanicException, a BaseException that ``except Exception``
+    misses (its class lives in pyo3's runtime module, so it is known by name)."""
+    return type(exc).__name__ == "PanicException"
+
+
+def _panic_error(where: Path | str, exc: BaseException) -> InputError:
+    return InputError(where, f"corrupt LAZ data (lazrs failed: {exc})")
 
 
 @dataclass(frozen=True)
@@ -592,18 +917,9 @@ def las_info(path: Path | str) -> LasInfo:
 
     where: Path | str = path if is_url(path) else Path(path)
     try:
-        with _las_source(where) as source, laspy.open(source) as reader:
+        with _las_source(where) as source, _checked(source, where), laspy.open(source) as reader:
             h = reader.header
             n = int(h.point_count)
-            if not h.are_points_compressed:
-                size = _size(source)
-                need = int(h.offset_to_point_data) + n * int(h.point_format.size)
-                if size < need:
-                    raise InputError(
-                        where,
-                        f"truncated LAS file: {n} points of {h.point_format.size} bytes need "
-                        f"{need} bytes, the file has {size}",
-                    )
             version = f"{h.version.major}.{h.version.minor}"
             fmt = f"{url_suffix(where)[1:]} {version} point format {h.point_format.id}"
             mins = tuple(float(v) for v in h.mins)
@@ -612,7 +928,26 @@ def las_info(path: Path | str) -> LasInfo:
         if isinstance(exc, InputError):
             raise
         raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from None
+    except BaseException as exc:
+        if not _is_panic(exc):
+            raise
+        raise _panic_error(where, exc) from None
     return LasInfo(where, n, mins, maxs, fmt)  # type: ignore[arg-type]  # 3-tuples
+
+
+@contextlib.contextmanager
+def _checked(
+    source: Any, where: Path | str, decode: tuple[int, int | None] | None = None
+) -> Iterator[None]:
+    """:func:`_check_las_layout` on a path or a seekable file object (left at its start); an
+    unseekable stream is not checked (the PanicException backstop still applies)."""
+    if isinstance(source, Path):
+        with source.open("rb") as f:
+            _check_las_layout(f, source.stat().st_size, where, decode=decode)
+    elif source.seekable():
+        _check_las_layout(source, _size(source), where, decode=decode)
+        source.seek(0)
+    yield
 
 
 def _size(source: Any) -> int:
@@ -647,7 +982,12 @@ def iter_las(
     want = -1
     seen = 0
     try:
-        with _las_source(where) as source, laspy.open(source) as reader:
+        stop = None if count is None else start + count
+        with (
+            _las_source(where) as source,
+            _checked(source, where, (start, stop)),
+            laspy.open(source) as reader,
+        ):
             total = int(reader.header.point_count)
             want = total - start if count is None else min(count, total - start)
             if start:
@@ -665,6 +1005,10 @@ def iter_las(
         if isinstance(exc, InputError):
             raise
         raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from None
+    except BaseException as exc:  # GeneratorExit at a yield is re-raised as it is
+        if not _is_panic(exc):
+            raise
+        raise _panic_error(where, exc) from None
     if seen != want:
         raise InputError(
             where, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
@@ -694,14 +1038,25 @@ def _xyz(points: Any, origin: NDArray[np.float64] | None = None) -> NDArray[np.f
 
 
 def _open3d_points(path: Path, expected: int) -> NDArray[np.float64]:
-    """Open3D's points for ``path``, which must hold ``expected`` of them."""
+    """Open3D's points for ``path``, which must hold ``expected`` of them.
+
+    A PLY that RPly (Open3D's PLY parser) fails to read still comes back with the header's
+    number of points, the unread ones uninitialised: RPly's complaint, which it prints to file
+    descriptor 2 and reports nowhere else, is the only sign, so it is captured and refused.
+    """
     import open3d
 
     utility = open3d.utility
-    with utility.VerbosityContextManager(utility.VerbosityLevel.Error):
-        cloud = open3d.io.read_point_cloud(
-            path, remove_nan_points=False, remove_infinite_points=False
-        )
+    try:
+        with _fd2_lines() as printed, utility.VerbosityContextManager(utility.VerbosityLevel.Error):
+            cloud = open3d.io.read_point_cloud(
+                path, remove_nan_points=False, remove_infinite_points=False
+            )
+    except RuntimeError as exc:  # Open3D raises its own errors as RuntimeError
+        raise InputError(path, f"corrupt data: Open3D cannot read it ({exc})") from None
+    complaints = [line for line in printed if line.startswith("RPly")]
+    if complaints:
+        raise InputError(path, f"corrupt or truncated data ({complaints[0]})")
     points = np.array(cloud.points, dtype=np.float64).reshape(-1, 3)
     if len(points) != expected:
         raise InputError(
@@ -710,10 +1065,40 @@ def _open3d_points(path: Path, expected: int) -> NDArray[np.float64]:
     return points
 
 
+@contextlib.contextmanager
+def _fd2_lines() -> Iterator[list[str]]:
+    """The lines C code writes to file descriptor 2 meanwhile (RPly's errors), captured in a
+    temporary file; whatever else was written there is passed on to it afterwards. Where fd 2
+    cannot be duplicated nothing is captured."""
+    lines: list[str] = []
+    with _FD2_LOCK:  # one capture at a time: nested ones in threads would misroute fd 2
+        try:
+            saved = os.dup(2)
+        except OSError:
+            yield lines
+            return
+        with tempfile.TemporaryFile() as tmp:
+            sys.stderr.flush()
+            os.dup2(tmp.fileno(), 2)
+            try:
+                yield lines
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                tmp.seek(0)
+                lines += tmp.read().decode("utf-8", "replace").splitlines()
+                other = [ln for ln in lines if not ln.startswith("RPly")]
+                if other:
+                    os.write(2, ("\n".join(other) + "\n").encode())
+
+
 def _stack(records: NDArray[np.void]) -> NDArray[np.float64]:
     out = np.empty((len(records), 3))
-    for axis, name in enumerate(_XYZ):  # three column copies
-        out[:, axis] = records[name]
+    # A signalling NaN in the file raises the "invalid" flag as it is widened; NaN points are
+    # dropped by the caller, so that is no warning to print.
+    with np.errstate(invalid="ignore"):
+        for axis, name in enumerate(_XYZ):  # three column copies
+            out[:, axis] = records[name]
     return out
 
 

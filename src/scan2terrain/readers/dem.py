@@ -332,9 +332,39 @@ def read_dem(
     finally:
         tifffile_logger.removeFilter(log)
     dem = _to_dem(path, raw, tags, pixel_size)
+    if pixel_size is None and not dem.square:
+        _check_resampled_size(path, dem, max_pixels)
     if log.messages:
         dem = dataclasses.replace(dem, notes=(*dem.notes, *log.messages))
     return dem
+
+
+def _check_resampled_size(path: Path, dem: Dem, max_pixels: int) -> None:
+    """Refuse a DEM whose pixels, made square at its default resolution, would be more than
+    ``max_pixels``: non-square pixels of very different sides (a corrupt pixel scale of 1e300
+    made a 1e303-pixel grid) are the file's fault, so the file is named."""
+    px, py = dem.pixel_size
+    w, h = dem.extent
+    if not all(math.isfinite(v) and v > 0 for v in (px, py, w, h)):
+        raise InputError(path, f"pixel size {px} x {py} m is not a finite number of metres")
+    finer = min(px, py)
+    # The default resolution lies between half the finer pixel side and that side: counts at
+    # half of it bound the grid from above without rounding huge numbers up to integers.
+    if (2 * w / finer + 2) * (2 * h / finer + 2) <= max_pixels:
+        return
+    rows, cols = dem.shape
+    if w / finer * (h / finer) > 1e15:  # refused whatever the rounding
+        r, nx, ny = finer, w / finer, h / finer
+    else:
+        r = dem.default_resolution()
+        nx, ny = _samples(cols, px, r), _samples(rows, py, r)
+    if nx * ny > max_pixels:
+        raise InputError(
+            path,
+            f"its {px:.3g} x {py:.3g} m pixels, resampled onto square {r:.3g} m ones, would make "
+            f"{nx:.3g} x {ny:.3g} pixels, over the limit of {max_pixels} (a corrupt pixel "
+            "scale?)",
+        )
 
 
 class _TiffLog(logging.Filter):
@@ -380,10 +410,12 @@ def _decode(
             "(raise it with --max-pixels if the file is trusted)",
         )
     ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts, strict=False)]
-    if not ends or max(ends) > file_size:
-        end = max(ends) if ends else 0
+    if not ends:
+        raise InputError(path, "no pixel data: its strip or tile offsets are missing or corrupt")
+    if max(ends) > file_size:
         raise InputError(
-            path, f"truncated: pixel data ends at byte {end} but the file has {file_size} bytes"
+            path,
+            f"truncated: pixel data ends at byte {max(ends)} but the file has {file_size} bytes",
         )
     tags = {int(t.code): t.value for t in page.tags.values()}
     try:

@@ -14,6 +14,7 @@ Reference: nav2 ``nav2_map_server/src/map_io.cpp`` (``loadMapYaml`` and ``loadMa
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,14 @@ from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, Channels, open_pixe
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
 
 MODES = ("trinary", "scale", "raw")
+#: A map may reach this many of its cells from the coordinate origin. Beyond, float64 map
+#: coordinates no longer keep its cell edges apart for the outlines and meshes made from them
+#: (an origin of 1e308 m made the mesh triangulation fail); UTM coordinates (1e7 m) at 1 mm
+#: cells are within it.
+MAX_REACH_CELLS = 2.0**34
+#: ... and at most this many metres (a million km: beyond any coordinate on a planet; meshes are
+#: float32, and 1e300 m cells overflowed the outlines).
+MAX_REACH_M = 1e9
 
 
 @dataclass(frozen=True)
@@ -56,7 +65,28 @@ def read_map_yaml(
     meta = read_map_metadata(path)
     channels = open_pixels(meta.image, max_pixels)
     data = occupancy_from_pixels(channels, meta)
+    problem = extent_problem(data.shape, meta.resolution, meta.origin)
+    if problem:
+        raise InputError(path, problem)
     return meta, OccupancyGrid(np.ascontiguousarray(np.flipud(data)), meta.resolution, meta.origin)
+
+
+def extent_problem(shape: tuple[int, ...], resolution: float, origin: Pose2D) -> str | None:
+    """Why a map of ``shape`` cells placed by ``resolution`` and ``origin`` cannot be built on
+    (a non-finite or non-positive number, or a corner too far from 0: see
+    :data:`MAX_REACH_CELLS` and :data:`MAX_REACH_M`), or None. Also used for OccupancyGrid
+    messages."""
+    if not (math.isfinite(resolution) and resolution > 0):
+        return f"resolution {resolution} is not a positive number of metres"
+    if not all(math.isfinite(v) for v in (origin.x, origin.y, origin.yaw)):
+        return f"origin ({origin.x}, {origin.y}, {origin.yaw}) is not finite"
+    reach = max(abs(origin.x), abs(origin.y)) + math.hypot(*shape[:2]) * resolution
+    if not reach <= min(MAX_REACH_CELLS * resolution, MAX_REACH_M):
+        return (
+            f"the map reaches {reach:.3g} m from 0, more than {MAX_REACH_M:g} m or 2^34 of its "
+            f"{resolution:g} m cells: its origin or resolution is corrupt"
+        )
+    return None
 
 
 def read_map_metadata(path: Path) -> MapMetadata:
@@ -159,6 +189,10 @@ def _required(doc: dict[str, Any], key: str, path: Path) -> Any:
 
 def _number(doc: dict[str, Any], key: str, path: Path) -> float:
     value = _required(doc, key, path)
+    if isinstance(value, str):
+        # YAML 1.1 (PyYAML) reads "5e-2" as a string; map_server's yaml-cpp reads it as 0.05.
+        with contextlib.suppress(ValueError):
+            value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(path, f"'{key}' must be a number, got {value!r}")
     if not math.isfinite(value):

@@ -21,6 +21,8 @@ from numpy.typing import NDArray
 from scan2terrain.errors import InputError
 
 SUFFIXES = (".dat", ".log", ".txt")
+#: OctoMap's points are float32 (``point3d``): larger coordinates cannot be inserted.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -110,10 +112,22 @@ def _scan(path: Path, rows: list[str], pose: tuple[float, ...] | None, first: in
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(path, f"near line {first}: expected 3 numbers per point line")
     if pose is None:
-        return PosedScan(pts, np.zeros(3))
-    x, y, z, roll, pitch, yaw = pose
-    rot = rotation(roll, pitch, yaw)
-    return PosedScan(pts @ rot.T + (x, y, z), np.array([x, y, z]))
+        world, origin = pts, np.zeros(3)
+    else:
+        x, y, z, roll, pitch, yaw = pose
+        with np.errstate(over="ignore", invalid="ignore"):  # checked just below
+            world = pts @ rotation(roll, pitch, yaw).T + (x, y, z)
+        origin = np.array([x, y, z])
+    with np.errstate(invalid="ignore"):
+        usable = (np.abs(world) <= _FLOAT32_MAX).all(axis=1)  # False for NaN and inf too
+    if not usable.all():
+        bad = int(np.argmin(usable))
+        raise InputError(
+            path,
+            f"line {first + bad}: point {rows[bad][:40]!r} is not a finite float32 coordinate "
+            "(OctoMap's point type) in the map frame",
+        )
+    return PosedScan(world, origin)
 
 
 def _numeric(row: str) -> bool:

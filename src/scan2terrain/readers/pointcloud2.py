@@ -34,6 +34,8 @@ DATATYPES: dict[int, str] = {
 }
 
 _XYZ = ("x", "y", "z")
+#: The largest point_step a numpy dtype can have.
+_MAX_POINT_STEP = 2**31 - 1
 
 
 def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
@@ -63,8 +65,10 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
         return np.zeros((0, 3))
     records = _records(msg, _XYZ)
     xyz = np.empty((records.size, 3))
-    for axis, name in enumerate(_XYZ):  # three strided gathers, not a loop over points
-        xyz[:, axis] = records[name].reshape(-1)
+    # A signalling NaN raises the "invalid" flag as it is widened; it is dropped below.
+    with np.errstate(invalid="ignore"):
+        for axis, name in enumerate(_XYZ):  # three strided gathers, not a loop over points
+            xyz[:, axis] = records[name].reshape(-1)
     # Hot path (every scan of a bag): numpy's per-row reductions over 3 columns (`all(axis=1)`)
     # and 2-D boolean indexing each cost ~10x a flat pass. A sum is finite only if every term
     # is (inf and NaN never turn finite), so one flat sum clears a dense cloud without a mask
@@ -122,6 +126,8 @@ def _records(msg: Any, names: Sequence[str]) -> NDArray[np.void]:
     point_step, row_step = int(msg.point_step), int(msg.row_step)
     if height < 0 or width < 0:
         raise InputError(None, f"PointCloud2 has a negative size {height} x {width}")
+    if point_step > _MAX_POINT_STEP:  # numpy's dtypes are at most 2^31 - 1 bytes
+        raise InputError(None, f"PointCloud2 point_step {point_step} is not a point's size")
     dtype = _dtype(msg, names, point_step)
     if height * width == 0:
         return np.zeros((height, width), dtype=dtype)

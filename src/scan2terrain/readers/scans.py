@@ -51,6 +51,7 @@ from scan2terrain.readers.bag import (
     resolve_time,
 )
 from scan2terrain.readers.laserscan import laserscan_points
+from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import (
     PoseTrack,
@@ -60,7 +61,7 @@ from scan2terrain.readers.poses import (
     odometry_track,
     read_tum,
 )
-from scan2terrain.types import Transform
+from scan2terrain.types import Pose2D, Transform
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
@@ -296,6 +297,7 @@ class _Poser:
 
     def __init__(self, bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
         self.plan = plan
+        self.source, self.start_ns = bag.path, bag.start_ns  # for errors about a message
         self.tf: TfBuffer | None = None
         self.track: PoseTrack | None = None
         self.fixed: Transform | None = None
@@ -390,7 +392,7 @@ def _pose_batch(
     for topic, items in by_topic.items():
         stamps = np.array([_stamp(m, t) for t, m in items], dtype=np.int64)
         valid, rot, trans = poser.poses(topic, stamps)
-        for j, (_, msg) in enumerate(items):
+        for j, (t_ns, msg) in enumerate(items):
             counts.messages += 1
             if not valid[j]:
                 counts.unposed += 1
@@ -399,10 +401,18 @@ def _pose_batch(
                         poser.why_not(topic, int(stamps[j]))
                     )
                 continue
-            if hasattr(msg, "ranges"):
-                pts, mr = laserscan_points(msg, max_range if max_range > 0 else None)
-            else:
-                pts, mr = pointcloud2_xyz(msg), max_range
+            try:
+                if hasattr(msg, "ranges"):
+                    pts, mr = laserscan_points(msg, max_range if max_range > 0 else None)
+                else:
+                    pts, mr = pointcloud2_xyz(msg), max_range
+            except InputError as exc:  # about the message alone: name the bag and the message
+                if exc.path is not None:
+                    raise
+                at = (t_ns - poser.start_ns) / 1e9
+                raise InputError(
+                    poser.source, f"message on {topic} at {at:.3f} s: {exc.problem}"
+                ) from None
             if len(pts) == 0:
                 counts.empty += 1
                 continue
@@ -443,4 +453,8 @@ def occupancy_from_message(msg: Any) -> tuple[NDArray[np.int8], float, tuple[flo
     q = info.origin.orientation
     yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
     p = info.origin.position
-    return data.reshape(h, w), float(info.resolution), (float(p.x), float(p.y), yaw)
+    origin = (float(p.x), float(p.y), yaw)
+    problem = extent_problem((h, w), float(info.resolution), Pose2D(*origin))
+    if problem:
+        raise ValueError(problem)
+    return data.reshape(h, w), float(info.resolution), origin
