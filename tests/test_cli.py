@@ -411,3 +411,33 @@ def test_closed_stdout_pipe_is_not_an_error(tmp_path: Path) -> None:
     )
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert (out / "spawn.yaml").is_file()
+
+
+@pytest.mark.parametrize("kind", ["ours", "bug"])
+def test_every_error_is_one_line(
+    kind: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Libraries quote whole files or message definitions in their errors: whatever the text,
+    the CLI prints one line (exit 2 for ours, 1 for a bug)."""
+    from scan2terrain import pipeline
+    from scan2terrain.errors import InputError
+
+    def fail(*args: object, **kwargs: object) -> None:
+        if kind == "ours":
+            raise InputError(Path("m.yaml"), "first line\n  second line\r\nthird")
+        raise RuntimeError("x" * 1000 + "\nmore")
+
+    monkeypatch.setattr(pipeline, "map2world", fail)
+    code = main(
+        [
+            "map2world",
+            str(FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"),
+            "-o",
+            str(tmp_path / "w"),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code == (2 if kind == "ours" else 1)
+    assert err.count("\n") == 1 and len(err) < 600, err
+    if kind == "ours":
+        assert "first line second line third" in err

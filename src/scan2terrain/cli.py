@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -668,16 +669,23 @@ def main(argv: list[str] | None = None) -> int:
 
             traceback.print_exc()
         if isinstance(exc, Scan2TerrainError):
-            print(f"scan2terrain: error: {exc}", file=sys.stderr)
+            print(f"scan2terrain: error: {_one_line(exc)}", file=sys.stderr)
             return 2
         print(
-            f"scan2terrain: internal error: {type(exc).__name__}: {exc} "
+            f"scan2terrain: internal error: {type(exc).__name__}: {_one_line(exc)} "
             "(run with -v for the traceback, and please report it)",
             file=sys.stderr,
         )
         return 1
     finally:
         warnings.showwarning = saved
+
+
+def _one_line(exc: BaseException, limit: int = 400) -> str:
+    """An error's text on one line (libraries quote whole files or message definitions),
+    cut at ``limit`` characters."""
+    text = re.sub(r"\s*[\r\n]+\s*", " ", str(exc)).strip()
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _drop_stdout() -> None:

@@ -805,11 +805,12 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     base = cfg.dem.resolution if cfg.dem.resolution is not None else dem.default_resolution()
     res = base / t.upsample
     cells = (dem.extent[0] / res + 2) * (dem.extent[1] / res + 2)
-    if cells > cfg.max_pixels:
-        raise ConfigError(
+    if not cells <= cfg.max_pixels:  # NaN too
+        raise InputError(
+            source,
             f"{res:g} m pixels make the {dem.extent[0]:.0f} x {dem.extent[1]:.0f} m DEM "
             f"~{cells:.3g} pixels, over max_pixels {cfg.max_pixels}: choose a coarser "
-            "--resolution"
+            "--resolution (or raise --max-pixels)",
         )
     grid = dem.to_height_grid(res)
     c = cfg.canvas

@@ -118,3 +118,12 @@ def test_coarse_cells_take_the_surface_under_the_footprint() -> None:
     # At the centre cell (col 4, x = 0), the footprint reaches 0.75 m = 0.025 cells east.
     assert (s.x, s.y) == pytest.approx((0.0, 0.0))
     assert s.z == pytest.approx(4 * 0.5 + 0.5 * 0.75 / r)
+
+
+@pytest.mark.parametrize("resolution", [1e-12, 1e-300, 1e-4])
+def test_absurdly_fine_cells_do_not_overflow_the_windows(resolution: float) -> None:
+    """The footprint in cells is clamped to the grid (a .bt at 1e-12 m made scipy's filters
+    raise MemoryError / OverflowError)."""
+    heights = np.zeros((6, 7))
+    spawn = find_spawn(heights, resolution, Pose2D(0.0, 0.0, 0.0))
+    assert math.isfinite(spawn.x) and math.isfinite(spawn.y) and spawn.z == 0.0

@@ -59,8 +59,11 @@ def find_spawn(
     if preferred is None:
         preferred, why = _default_point(rows, cols, r, origin)
     row, col = _cell_of(preferred, r, origin)
-    half = max(1, math.ceil(FOOTPRINT / 2 / r + 0.5) - 1)
-    near = max(half + 1, math.ceil(NEAR / r))
+    # Windows never larger than the grid: at absurdly fine cells (1e-12 m) the footprint in
+    # cells would overflow the filters' sizes.
+    limit = max(rows, cols)
+    half = max(1, math.ceil(min(FOOTPRINT / 2 / r, limit) + 0.5) - 1)
+    near = max(half + 1, math.ceil(min(NEAR / r, limit)))
     window = (
         slice(max(0, min(row, rows - 1) - near), min(rows, max(row, 0) + near + 1)),
         slice(max(0, min(col, cols - 1) - near), min(cols, max(col, 0) + near + 1)),

@@ -159,7 +159,7 @@ class VoxelOctree:
             half = KEY_OFFSET * self.resolution
             raise InputError(
                 None,
-                f"sensor origin {tuple(o)} is outside the octree's key range "
+                f"sensor origin {tuple(float(c) for c in o)} is outside the octree's key range "
                 f"(+-{half:g} m at {self.resolution} m)",
             )
         res = self.resolution
