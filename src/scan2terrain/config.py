@@ -568,6 +568,8 @@ def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
             return _finite(value, where, source)
         if "str" in text:
             return str(value)
+    except ConfigError:
+        raise
     except (TypeError, ValueError, OverflowError):
         pass
     raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r:.60}; expected {text})")

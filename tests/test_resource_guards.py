@@ -1,0 +1,103 @@
+"""Issue 13's cases outside the readers, each as it was seen: sizes checked before work, a
+config file that is not one, values that make no sense. Memory-hungry regressions run in a
+child under an address-space limit and a timeout, so they fail here instead of taking the
+machine down."""
+
+from __future__ import annotations
+
+import os
+import resource
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from scan2terrain.cli import main
+from tests.conftest import FIXTURES, MAPS
+
+LIMIT = 3 << 30  # bytes of address space for a child run
+
+
+def run_limited(
+    argv: list[str], cwd: Path, timeout: float = 120
+) -> subprocess.CompletedProcess[str]:
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (LIMIT, LIMIT))
+
+    return subprocess.run(
+        [sys.executable, "-m", "scan2terrain.cli", *argv],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        preexec_fn=limit,
+        check=False,
+    )
+
+
+@pytest.mark.parametrize(
+    "cloud",
+    [
+        FIXTURES / "clouds/pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt",
+        FIXTURES / "clouds/pc_las_simple_twin/simple.las",
+    ],
+    ids=["autzen-txt", "simple-las"],
+)
+def test_default_resolution_over_a_survey_is_refused_before_allocating(
+    cloud: Path, tmp_path: Path
+) -> None:
+    """Seen: default cloud2world (0.05 m) grew to 24 GB on the 107-point Autzen text file (OOM
+    killed) and ended in MemoryError on simple.las: their points span kilometres."""
+    r = run_limited(["cloud2world", str(cloud), "-o", str(tmp_path / "w")], tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, r.stderr[-500:]
+    assert len(lines) == 1 and "--resolution" in lines[0] and str(cloud) in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_fifo_as_config_is_refused_not_waited_on(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fifo = tmp_path / "cfg.yaml"
+    os.mkfifo(fifo)
+    result: list[int] = []
+    worker = threading.Thread(
+        target=lambda: result.append(
+            main(["map2world", str(MAPS["tb3"]), "-o", str(tmp_path / "w"), "--config", str(fifo)])
+        ),
+        daemon=True,
+    )
+    worker.start()
+    worker.join(30)
+    if worker.is_alive():  # unblock the reader so the session can go on, then fail
+        with open(fifo, "w"):  # noqa: PTH123
+            pass
+        worker.join(5)
+        pytest.fail("--config on a FIFO waited for a writer")
+    assert result == [2]
+    assert "not a regular file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("text", "what"),
+    [
+        ("terrain: {height: " + "9" * 400 + "}\n", "terrain.height"),
+        ("filter: {size: " + "9" * 400 + "}\n", "filter.size"),
+        ("terrain: " + "[" * 5000 + "]" * 5000 + "\n", "malformed"),
+        ("terrain: {height: .nan}\n", "finite"),
+        ("terrain: {height: .inf}\n", "finite"),
+    ],
+    ids=["huge-float", "huge-int", "deep", "nan", "inf"],
+)
+def test_absurd_config_files_are_one_line(
+    text: str, what: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Seen: a 400-digit integer or deep nesting in --config was exit 1."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(text)
+    code = main(["map2world", str(MAPS["tb3"]), "-o", str(tmp_path / "w"), "--config", str(cfg)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and what in err[0], err
+    assert not (tmp_path / "w").exists()
