@@ -49,8 +49,9 @@ def end_to_end(exe: Path, out: Path, runs: int) -> list[tuple[str, list[float], 
 def steps(runs: int) -> list[tuple[str, list[float], float | None]]:
     from scan2terrain import pipeline
     from scan2terrain.config import Config
-    from scan2terrain.exporters import mesh, outlines, sdf
-    from scan2terrain.exporters.boxes import merge_boxes
+    from scan2terrain.exporters import meshfile, sdf
+    from scan2terrain.geometry import mesh, outlines
+    from scan2terrain.geometry.boxes import merge_boxes
     from scan2terrain.readers import read_map_yaml
 
     meta, grid = read_map_yaml(WILLOW)
@@ -85,7 +86,14 @@ def steps(runs: int) -> list[tuple[str, list[float], float | None]]:
         ("mesh.extrude", timed(lambda: mesh.extrude(polygons, 2.0), runs), None),
         (
             "stl + dae + obj bytes",
-            timed(lambda: (mesh.stl_bytes(m), mesh.dae_bytes(m, "walls"), mesh.obj_bytes(m)), runs),
+            timed(
+                lambda: (
+                    meshfile.stl_bytes(m),
+                    meshfile.dae_bytes(m, "walls"),
+                    meshfile.obj_bytes(m),
+                ),
+                runs,
+            ),
             None,
         ),
     ]

@@ -42,7 +42,8 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
     """Best time of each step on one map, and its counts."""
     from scan2terrain import pipeline
     from scan2terrain.config import Config
-    from scan2terrain.exporters import mesh, outlines
+    from scan2terrain.exporters import meshfile
+    from scan2terrain.geometry import mesh, outlines
     from scan2terrain.readers import read_map_yaml
 
     meta, grid = read_map_yaml(path)
@@ -56,17 +57,17 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
 
     def total() -> None:
         walls = mesh.extrude(outlines.trace(occ, r, origin), HEIGHT)
-        mesh.stl_bytes(walls)
-        mesh.dae_bytes(walls, "walls")
+        meshfile.stl_bytes(walls)
+        meshfile.dae_bytes(walls, "walls")
 
     steps: dict[str, Callable[[], Any]] = {
         "trace": lambda: outlines.trace(occ, r, origin),
         "simplify (1 cell)": lambda: outlines.simplify(exact, r, resolution=r, origin=origin),
         "extrude (exact)": lambda: mesh.extrude(exact, HEIGHT),
         "extrude (simplified)": lambda: mesh.extrude(simple, HEIGHT),
-        "stl_bytes (exact)": lambda: mesh.stl_bytes(m),
-        "dae_bytes (exact)": lambda: mesh.dae_bytes(m, "walls"),
-        "obj_bytes (exact)": lambda: mesh.obj_bytes(m),
+        "stl_bytes (exact)": lambda: meshfile.stl_bytes(m),
+        "dae_bytes (exact)": lambda: meshfile.dae_bytes(m, "walls"),
+        "obj_bytes (exact)": lambda: meshfile.obj_bytes(m),
         "mesh total (trace+extrude+stl+dae)": total,
     }
     times = {step: best_time(function, runs) for step, function in steps.items()}

@@ -30,8 +30,8 @@ import pytest
 from scan2terrain import pipeline
 from scan2terrain.cli import main
 from scan2terrain.config import load_config
-from scan2terrain.exporters.outlines import Polygon, rasterize
 from scan2terrain.exporters.sdf import GROUND_MARGIN
+from scan2terrain.geometry.outlines import Polygon, rasterize
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid, Pose2D
 from tests.conftest import MAPS, ROOT, write_map

@@ -691,19 +691,20 @@ def _walls(
 ) -> _Walls:
     kind = cfg.world.geometry
     if kind == "boxes":
-        from scan2terrain.exporters import mesh as meshes
-        from scan2terrain.exporters.boxes import merge_boxes
+        from scan2terrain.exporters.meshfile import dae_bytes
+        from scan2terrain.geometry.boxes import merge_boxes
+        from scan2terrain.geometry.mesh import boxes_mesh
 
         cells = merge_boxes(walls)
         boxes = _box_poses(cells, resolution, origin)
-        visual = meshes.boxes_mesh(boxes, cfg.terrain.height)
+        visual = boxes_mesh(boxes, cfg.terrain.height)
         return _Walls(
             lambda p, comment: sdf.boxes_model_sdf(p, ground, boxes, comment=comment),
-            {f"{sdf.MESH_DIR}/{sdf.MESH_STEM}.dae": meshes.dae_bytes(visual, sdf.MESH_STEM)},
+            {f"{sdf.MESH_DIR}/{sdf.MESH_STEM}.dae": dae_bytes(visual, sdf.MESH_STEM)},
             f"{len(cells)} boxes (the fewest that cover the wall cells exactly) in one model,"
             f" one mesh visual of them ({sdf.MESH_DIR}/{sdf.MESH_STEM}.dae)",
         )
-    from scan2terrain.exporters import outlines
+    from scan2terrain.geometry import outlines
 
     polygons = outlines.trace(walls, resolution, origin)
     simplified = ""
@@ -734,14 +735,15 @@ def _walls(
             {},
             f"{outline}, one <polyline> geometry each (holes as extra <polyline> elements)",
         )
-    from scan2terrain.exporters import mesh as meshes
+    from scan2terrain.exporters import meshfile
+    from scan2terrain.geometry.mesh import extrude
 
-    mesh = meshes.extrude(polygons, cfg.terrain.height)
+    mesh = extrude(polygons, cfg.terrain.height)
     stem = f"{sdf.MESH_DIR}/{sdf.MESH_STEM}"
     files = {
-        f"{stem}.stl": meshes.stl_bytes(mesh),
-        f"{stem}.dae": meshes.dae_bytes(mesh, sdf.MESH_STEM),
-        f"{stem}.obj": meshes.obj_bytes(mesh),
+        f"{stem}.stl": meshfile.stl_bytes(mesh),
+        f"{stem}.dae": meshfile.dae_bytes(mesh, sdf.MESH_STEM),
+        f"{stem}.obj": meshfile.obj_bytes(mesh),
     }
     return _Walls(
         lambda p, comment: sdf.mesh_model_sdf(p, ground, comment=comment),

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from scan2terrain.cli import main
-from scan2terrain.exporters import outlines, sdf
+from scan2terrain.exporters import sdf
+from scan2terrain.geometry import outlines
 from scan2terrain.types import Pose2D
 from tests.conftest import write_map
 

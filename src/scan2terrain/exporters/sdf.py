@@ -327,7 +327,7 @@ def boxes_model_sdf(
     p: Placement, ground: Ground, boxes: NDArray[np.float64], *, comment: str
 ) -> bytes:
     """``model.sdf`` with one box collision per wall box and one visual for them all
-    (``meshes/walls.dae``, :func:`scan2terrain.exporters.mesh.boxes_mesh`: the same boxes), all
+    (``meshes/walls.dae``, :func:`scan2terrain.geometry.mesh.boxes_mesh`: the same boxes), all
     in one static link. A model per box would hit Gazebo's limits on real maps, and a visual per
     box doubles what Gazebo parses (Willow Garage: 1.3 s of a 2.3 s load); no boxes, no visual.
 
@@ -450,7 +450,7 @@ def gz_polyline_points(
     list of lists of float64 arrays, each shape (N, 2)
         The same structure, moved.
     """
-    from scan2terrain.exporters.mesh import _splitmix64
+    from scan2terrain.geometry.mesh import splitmix64
 
     rings = [np.asarray(r, dtype=np.float64).reshape(-1, 2) for poly in polygons for r in poly]
     if not rings:
@@ -462,7 +462,7 @@ def gz_polyline_points(
     quantum = float(np.ldexp(1.0, int(np.frexp(biggest)[1]) - 50))
     steps = np.rint(xy / quantum)  # integers, |steps| <= 2^50
     bits = steps.astype(np.int64).view(np.uint64)
-    mixed = _splitmix64(_splitmix64(bits[:, 0]) ^ bits[:, 1])
+    mixed = splitmix64(splitmix64(bits[:, 0]) ^ bits[:, 1])
     span = np.uint64(2 * POLYLINE_NUDGE + 1)
     nudge = np.stack([mixed % span, (mixed >> np.uint64(32)) % span], axis=1)
     moved = (steps + (nudge.astype(np.int64) - POLYLINE_NUDGE)) * quantum

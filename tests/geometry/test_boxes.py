@@ -19,7 +19,7 @@ from scipy.optimize import Bounds, LinearConstraint, milp
 
 from scan2terrain import pipeline
 from scan2terrain.config import Config
-from scan2terrain.exporters.boxes import box_extents, merge_boxes, rasterize_boxes
+from scan2terrain.geometry.boxes import box_extents, merge_boxes, rasterize_boxes
 from scan2terrain.readers import read_map_yaml
 from tests.conftest import MAPS
 

@@ -19,7 +19,7 @@ Diagonal contacts
     free pocket whose only way out is the diagonal) the ring is split there, into the exterior
     and a clockwise hole touching it at that one point. So every ring is simple (no vertex
     twice, no crossing), rings touch only at such points, and every polygon is a valid OGC
-    polygon with a 4-connected interior. The mesh (:mod:`scan2terrain.exporters.mesh`) gives
+    polygon with a 4-connected interior. The mesh (:mod:`scan2terrain.geometry.mesh`) gives
     each side of such a point its own vertex, which keeps it 2-manifold.
 
 Simplification (:func:`simplify`)
@@ -332,7 +332,7 @@ def _trace_lattice(occ: NDArray[np.bool_]) -> _Rings:
     start = np.zeros(len(ring_start) + 1, dtype=np.int64)
     np.cumsum(counts, out=start[1:])
     # Orientation from the exact (integer) shoelace area over the corner vertices.
-    area2 = _ring_area2(xy, start)
+    area2 = ring_area2(xy, start)
     is_hole = area2 < 0
     owner = _hole_owners(vid[order], d, ring_id, is_hole, stride)
     # Group: each exterior followed by its holes, polygons by their exterior's order.
@@ -344,16 +344,23 @@ def _trace_lattice(occ: NDArray[np.bool_]) -> _Rings:
     )
 
 
-def _ring_area2(xy: NDArray[np.float64], start: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Twice the signed area of each ring."""
-    if len(xy) == 0:
-        return np.zeros(len(start) - 1)
+def ring_area2(xy: NDArray[np.float64], start: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Twice the signed area of each ring (rings ``start[i]:start[i + 1]`` of ``xy``), summed
+    about each ring's first vertex so coordinates far from the origin lose no precision; 0 for
+    an empty ring."""
+    sizes = np.diff(start)
+    out = np.zeros(len(sizes))
+    keep = sizes > 0
+    if not keep.any():
+        return out
+    first, end = start[:-1][keep], start[1:][keep]
+    ring = np.repeat(np.arange(len(first)), sizes[keep])
+    local = xy - xy[first][ring]
     nxt = np.arange(1, len(xy) + 1)
-    nxt[start[1:] - 1] = start[:-1]
-    cross = xy[:, 0] * xy[nxt, 1] - xy[nxt, 0] * xy[:, 1]
-    sums: NDArray[np.float64] = np.add.reduceat(cross, start[:-1]) if len(start) > 1 else cross
-    sums[np.diff(start) == 0] = 0.0
-    return sums
+    nxt[end - 1] = first
+    cross = local[:, 0] * local[nxt, 1] - local[nxt, 0] * local[:, 1]
+    out[keep] = np.bincount(ring, cross, minlength=len(first))
+    return out
 
 
 def _hole_owners(
@@ -511,7 +518,7 @@ def simplify(
     _check_resolution(resolution)
     if not polygons:
         return []
-    from scan2terrain.exporters import _outline_kernels as kern
+    from scan2terrain.geometry import _outline_kernels as kern
 
     rings = _flatten(polygons)
     hx, hy = _to_half_cells(rings.xy, resolution, origin)
@@ -722,7 +729,7 @@ def _rings_out(
     start = np.zeros(rings.count + 1, dtype=np.int64)
     np.cumsum(counts, out=start[1:])
     hx, hy = cand.x[kept], cand.y[kept]
-    area2 = _ring_area2(np.stack([hx, hy], axis=1), start)
+    area2 = ring_area2(np.stack([hx, hy], axis=1), start)
     alive = (counts >= 3) & (area2 != 0)
     # A hole whose exterior is gone goes too.
     ext_alive = np.zeros(int(rings.owner.max()) + 1, dtype=bool)

@@ -1,9 +1,9 @@
-"""Walls as one watertight triangle mesh extruded from outlines; its STL, OBJ and COLLADA bytes.
+"""Walls as one watertight triangle mesh extruded from outlines (the files: exporters.meshfile).
 
 Frames and units: vertices are in the MAP frame, metres, z up. Faces wind counter-clockwise seen
 from outside (right-hand normals point out of the solid).
 
-:func:`extrude` builds, per polygon (:class:`scan2terrain.exporters.outlines.Polygon`), a prism:
+:func:`extrude` builds, per polygon (:class:`scan2terrain.geometry.outlines.Polygon`), a prism:
 each outline edge becomes one wall quad (two triangles) and the polygon, holes included, is
 triangulated once for the top and once for the bottom cap, using only the outline's own
 vertices, so every boundary edge of a cap is exactly a wall quad's edge (no T-junctions) and
@@ -26,28 +26,20 @@ the small, fast, widely used ear-clipping triangulator (Mapbox's C++ header behi
 binding: numpy in and out, no other dependency, a 77 kB wheel). Constrained Delaunay libraries
 would need less repair but are either large (CGAL) or not free to use (Triangle).
 
-The writers return deterministic bytes: binary STL (float32, what STL holds), Wavefront OBJ and
-COLLADA 1.4.1 (float64 text, Python's shortest repr, which reads back to the same numbers; Z up,
-metres; with per-face normals, one material), as Gazebo loads for visuals and collisions.
 """
 
 from __future__ import annotations
 
 import math
-import re
-import struct
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.exporters.outlines import Polygon, _flatten
+from scan2terrain.geometry.outlines import Polygon, _flatten, ring_area2
 
-__all__ = ["Mesh", "dae_bytes", "extrude", "is_watertight", "obj_bytes", "stl_bytes"]
-
-#: Colour of the walls' material in COLLADA (RGBA, linear).
-WALL_COLOUR = (0.7, 0.7, 0.7, 1.0)
+__all__ = ["Mesh", "boxes_mesh", "extrude", "is_watertight", "splitmix64"]
 
 #: How far a vertex at a diagonal contact moves into its sector of material, along the sector's
 #: bisector: this fraction of the shorter of its two outline edges, at most ``SPLIT_MAX`` metres
@@ -89,8 +81,8 @@ def extrude(polygons: list[Polygon], height: float, base: float = 0.0) -> Mesh:
     polygons : list of Polygon
         Map frame, metres; valid polygons (simple rings, holes inside, not overlapping, rings
         touching at most at vertices), such as
-        :func:`~scan2terrain.exporters.outlines.trace` or
-        :func:`~scan2terrain.exporters.outlines.simplify` return.
+        :func:`~scan2terrain.geometry.outlines.trace` or
+        :func:`~scan2terrain.geometry.outlines.simplify` return.
     height : float
         Wall height, metres, > 0.
     base : float
@@ -107,7 +99,7 @@ def extrude(polygons: list[Polygon], height: float, base: float = 0.0) -> Mesh:
     -----
     Where rings meet at a point (a diagonal contact) the mesh needs one vertex per *sector* of
     material there, not one per ring: a hole touching its own exterior leaves the exterior's
-    corner along the hole's edge (see :mod:`~scan2terrain.exporters.outlines`), so a sector
+    corner along the hole's edge (see :mod:`~scan2terrain.geometry.outlines`), so a sector
     lies between one ring's outgoing edge and, counter-clockwise, another ring's incoming edge.
     Each sector uses the vertex that ends its incoming edge, for both walls and for the cap
     triangles inside it, so every vertical edge has exactly two wall faces.
@@ -324,7 +316,7 @@ def _caps(
     # Each polygon's triangles must add up to exactly its area, none turned over.
     area2 = _twice_areas(xy, tri)
     got = np.bincount(polygon, np.abs(area2), minlength=n_poly)
-    want = np.bincount(poly_of_ring, _ring_area2(xy, start), minlength=n_poly)
+    want = np.bincount(poly_of_ring, ring_area2(xy, start), minlength=n_poly)
     bad = ~np.isclose(got, want, rtol=1e-9, atol=1e-12) | (
         np.bincount(polygon, area2 < 0, minlength=n_poly) > 0
     )
@@ -368,12 +360,12 @@ def _jitter(
     # A hash of the place, not a random draw: the same bytes every run. Not a multiplicative
     # hash either: that is linear, and evenly numbered points on a line would stay on one.
     key = place.astype(np.uint64)[:, None] * np.uint64(2) + np.array([0, 1], dtype=np.uint64)
-    unit = (_splitmix64(key) >> np.uint64(11)).astype(np.float64) / float(1 << 53) * 2.0 - 1.0
+    unit = (splitmix64(key) >> np.uint64(11)).astype(np.float64) / float(1 << 53) * 2.0 - 1.0
     moved: NDArray[np.float64] = pts + unit * step[polygon][:, None]
     return moved
 
 
-def _splitmix64(x: NDArray[np.uint64]) -> NDArray[np.uint64]:
+def splitmix64(x: NDArray[np.uint64]) -> NDArray[np.uint64]:
     """The splitmix64 finaliser (Steele, Lea, Flood 2014): a well-mixed 64-bit hash."""
     z = x + np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -730,16 +722,6 @@ def _strict_ears(p: dict[int, tuple[float, float]], loop: list[int]) -> list[Tri
     return out
 
 
-def _ring_area2(xy: NDArray[np.float64], start: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Twice the signed area of each ring (coordinates taken from the ring's first vertex)."""
-    ring = np.repeat(np.arange(len(start) - 1), np.diff(start))
-    local = xy - xy[start[:-1]][ring]
-    nxt = np.arange(1, len(xy) + 1)
-    nxt[start[1:] - 1] = start[:-1]
-    cross = local[:, 0] * local[nxt, 1] - local[nxt, 0] * local[:, 1]
-    return np.bincount(ring, cross, minlength=len(start) - 1).astype(np.float64)
-
-
 def boxes_mesh(boxes: NDArray[np.float64], height: float, base: float = 0.0) -> Mesh:
     """Upright boxes as one mesh: 8 vertices and 12 triangles each (outward, counter-clockwise).
 
@@ -788,108 +770,3 @@ def is_watertight(mesh: Mesh) -> bool:
         return False  # a directed edge twice: inconsistent orientation or more than two faces
     reverse = np.sort(b * v + a)
     return bool(np.array_equal(directed, reverse))
-
-
-# --- writers ----------------------------------------------------------------------------------
-
-
-def stl_bytes(mesh: Mesh) -> bytes:
-    """Binary STL: an 80-byte header, the face count, then per face its unit normal and three
-    vertices (float32, little endian) and a zero attribute word. Map frame, metres."""
-    header = b"scan2terrain mesh, binary STL, metres, map frame, z up".ljust(80, b" ")
-    record = np.dtype([("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
-    body = np.zeros(len(mesh.faces), dtype=record)
-    body["normal"] = mesh.normals()
-    body["vertices"] = mesh.vertices[mesh.faces]
-    return header + struct.pack("<I", len(mesh.faces)) + body.tobytes()
-
-
-def obj_bytes(mesh: Mesh) -> bytes:
-    """Wavefront OBJ text: ``v x y z`` lines (shortest repr, exact), then ``f a b c`` lines
-    (1-based). Map frame, metres."""
-    lines = ["# scan2terrain mesh: map frame, metres, z up"]
-    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in mesh.vertices.tolist()]
-    lines += [f"f {a} {b} {c}" for a, b, c in (mesh.faces + 1).tolist()]
-    return ("\n".join(lines) + "\n").encode("ascii")
-
-
-def dae_bytes(mesh: Mesh, name: str) -> bytes:
-    """COLLADA 1.4.1 with one geometry (positions, per-face normals, triangles) and one
-    material, ``<unit meter="1"/>`` and ``<up_axis>Z_UP</up_axis>``. ``name`` (letters,
-    digits, ``_ - .``; others become ``_``) names the geometry, material and scene node.
-    Timestamps are fixed (1970-01-01) so the same mesh gives the same bytes."""
-    from lxml import etree
-
-    ident = re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "mesh"
-    if not re.match(r"[A-Za-z_]", ident):
-        ident = "_" + ident
-    ns = "http://www.collada.org/2005/11/COLLADASchema"
-    # lxml-stubs type nsmap keys as str; None is lxml's key for the default namespace.
-    root = etree.Element(f"{{{ns}}}COLLADA", nsmap={None: ns}, version="1.4.1")  # type: ignore[dict-item]
-
-    def sub(
-        parent: etree._Element, tag: str, text: str | None = None, **attrib: str
-    ) -> etree._Element:
-        el = etree.SubElement(parent, f"{{{ns}}}{tag}", attrib)
-        if text is not None:
-            el.text = text
-        return el
-
-    asset = sub(root, "asset")
-    contributor = sub(asset, "contributor")
-    sub(contributor, "authoring_tool", "scan2terrain")
-    sub(asset, "created", "1970-01-01T00:00:00Z")
-    sub(asset, "modified", "1970-01-01T00:00:00Z")
-    sub(asset, "unit", name="meter", meter="1")
-    sub(asset, "up_axis", "Z_UP")
-
-    effects = sub(root, "library_effects")
-    effect = sub(effects, "effect", id=f"{ident}-effect")
-    technique = sub(sub(effect, "profile_COMMON"), "technique", sid="common")
-    lambert = sub(technique, "lambert")
-    sub(sub(lambert, "diffuse"), "color", " ".join(map(repr, WALL_COLOUR)), sid="diffuse")
-    materials = sub(root, "library_materials")
-    material = sub(materials, "material", id=f"{ident}-material", name=f"{ident}-material")
-    sub(material, "instance_effect", url=f"#{ident}-effect")
-
-    geometries = sub(root, "library_geometries")
-    geometry = sub(geometries, "geometry", id=f"{ident}-mesh", name=ident)
-    m = sub(geometry, "mesh")
-    normals = mesh.normals()
-    for kind, values in (("positions", mesh.vertices), ("normals", normals)):
-        source = sub(m, "source", id=f"{ident}-{kind}")
-        array_id = f"{ident}-{kind}-array"
-        sub(
-            source,
-            "float_array",
-            " ".join(map(repr, values.reshape(-1).tolist())),
-            id=array_id,
-            count=str(values.size),
-        )
-        accessor = sub(
-            sub(source, "technique_common"),
-            "accessor",
-            source=f"#{array_id}",
-            count=str(len(values)),
-            stride="3",
-        )
-        for axis in "XYZ":
-            sub(accessor, "param", name=axis, type="float")
-    vertices = sub(m, "vertices", id=f"{ident}-vertices")
-    sub(vertices, "input", semantic="POSITION", source=f"#{ident}-positions")
-    triangles = sub(m, "triangles", material="walls", count=str(len(mesh.faces)))
-    sub(triangles, "input", semantic="VERTEX", source=f"#{ident}-vertices", offset="0")
-    sub(triangles, "input", semantic="NORMAL", source=f"#{ident}-normals", offset="1")
-    face_index = np.repeat(np.arange(len(mesh.faces), dtype=np.int64), 3)
-    p = np.stack([mesh.faces.reshape(-1), face_index], axis=1).reshape(-1)
-    sub(triangles, "p", " ".join(map(str, p.tolist())))
-
-    scenes = sub(root, "library_visual_scenes")
-    scene = sub(scenes, "visual_scene", id="Scene", name="Scene")
-    node = sub(scene, "node", id=ident, name=ident, type="NODE")
-    instance = sub(node, "instance_geometry", url=f"#{ident}-mesh", name=ident)
-    bind = sub(sub(instance, "bind_material"), "technique_common")
-    sub(bind, "instance_material", symbol="walls", target=f"#{ident}-material")
-    sub(sub(root, "scene"), "instance_visual_scene", url="#Scene")
-    out: bytes = etree.tostring(root, xml_declaration=True, encoding="utf-8", pretty_print=True)
-    return out

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from scan2terrain.config import Config
-from scan2terrain.exporters.outlines import Polygon, rasterize, simplify, trace
+from scan2terrain.geometry.outlines import Polygon, rasterize, simplify, trace
 from scan2terrain.pipeline import classify, filter_occupancy
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OCCUPIED, Pose2D

@@ -16,18 +16,11 @@ from lxml import etree
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scan2terrain.exporters.mesh import (
-    SPLIT_MAX,
-    Mesh,
-    dae_bytes,
-    extrude,
-    is_watertight,
-    obj_bytes,
-    stl_bytes,
-)
-from scan2terrain.exporters.outlines import Polygon, rasterize, simplify, trace
+from scan2terrain.exporters.meshfile import dae_bytes, obj_bytes, stl_bytes
+from scan2terrain.geometry.mesh import SPLIT_MAX, Mesh, extrude, is_watertight
+from scan2terrain.geometry.outlines import Polygon, rasterize, simplify, trace
 from scan2terrain.types import Pose2D
-from tests.exporters.test_outlines import default_filtered, grid
+from tests.geometry.test_outlines import default_filtered, grid
 
 ORIGIN = Pose2D(0.0, 0.0, 0.0)
 COLLADA = "{http://www.collada.org/2005/11/COLLADASchema}"
