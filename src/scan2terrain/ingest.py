@@ -25,13 +25,13 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.pipeline import (
     Result,
     ScanProgress,
-    Start,
     grid_options,
     occupancy_world,
     refuse_existing,
     voxels_world,
 )
-from scan2terrain.types import OccupancyGrid, Pose2D, Transform
+from scan2terrain.readers.points import hits_of, local_origin, start_of
+from scan2terrain.types import OccupancyGrid, Pose2D, Start, Transform
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -41,8 +41,6 @@ if TYPE_CHECKING:
 Progress = ScanProgress
 #: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
 StreamProgress = Callable[[int, int, int], None]
-#: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
-FAR = 1000.0
 #: The octree's keys reach this many voxels either side of the origin (OctoMap's depth 16).
 KEY_RANGE = 32768
 #: map_saver's thresholds (percent) for an OccupancyGrid message: >= 65 occupied, <= 25 free.
@@ -57,13 +55,6 @@ class Ingest:
     points: int
     notes: tuple[str, ...]
     start: Start | None = None  #: the first scan's sensor pose: where the robot started
-
-
-def start_of(scan: PosedScan) -> Start:
-    """Where the robot was at its first posed scan: the sensor's position and heading."""
-    x, y = float(scan.origin[0]), float(scan.origin[1])
-    why = f"from the recorded start ({scan.topic} at {scan.stamp_ns / 1e9:.3f} s)"
-    return Start(Pose2D(x, y, scan.heading), why)
 
 
 def streaming(cfg: Config) -> bool:
@@ -172,7 +163,7 @@ def bag_octree(
         if start is None:
             start = start_of(scan)
         if batch is not None:
-            batch.add(_hits_of(scan))
+            batch.add(hits_of(scan))
         else:
             _insert(tree, scan, bag.path)
         counts.inserted += 1
@@ -205,16 +196,6 @@ def _insert(tree: VoxelOctree, scan: PosedScan, source: Path) -> None:
         raise InputError(
             source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: {exc.problem}"
         ) from None
-
-
-def _hits_of(scan: PosedScan) -> NDArray[np.float64]:
-    """A scan's hits: its points, less a LaserScan's clear-only beams (beyond max range)."""
-    if scan.max_range <= 0:
-        return scan.points
-    rel = scan.points - scan.origin
-    d2 = np.einsum("ij,ij->i", rel, rel)
-    hits: NDArray[np.float64] = scan.points[d2 <= scan.max_range**2]
-    return hits
 
 
 class EndpointBatch:
@@ -304,23 +285,8 @@ def read_clouds(
     if local:
         lo = np.min([c.points.min(axis=0) for c in clouds], axis=0)
         hi = np.max([c.points.max(axis=0) for c in clouds], axis=0)
-        origin = local_origin(lo, hi, cfg, notes)
+        origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
     return [c.points - origin for c in clouds], origin, notes
-
-
-def local_origin(
-    lo: NDArray[np.float64], hi: NDArray[np.float64], cfg: Config, notes: list[str]
-) -> NDArray[np.float64]:
-    """The origin to subtract from clouds spanning ``lo``..``hi`` (x, y, z): their rounded
-    centre when they lie beyond FAR of the origin and ``scans.local_origin`` is auto, else
-    zero; a note says which was subtracted."""
-    if cfg.scans.local_origin != "auto" or max(np.abs(lo).max(), np.abs(hi).max()) <= FAR:
-        return np.zeros(3)
-    origin: NDArray[np.float64] = np.round((np.asarray(lo) + np.asarray(hi)) / 2)
-    notes.append(
-        "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(*origin)
-    )
-    return origin
 
 
 def cloud2world(
@@ -449,6 +415,6 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
 
 def _hits(scans: Iterator[PosedScan]) -> Iterator[NDArray[np.float64]]:
     for s in scans:
-        pts = _hits_of(s)
+        pts = hits_of(s)
         if len(pts):
             yield pts

@@ -54,7 +54,16 @@ from scan2terrain.grids import (
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
 from scan2terrain.grids.spawn import FOOTPRINT, find_spawn
-from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D, Spawn
+from scan2terrain.types import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    HeightGrid,
+    OccupancyGrid,
+    Pose2D,
+    Spawn,
+    Start,
+)
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -77,14 +86,6 @@ EXTRA_ABOUT = {
 
 #: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
 Terrain = Heightmap | TiledHeightmap
-
-
-@dataclass(frozen=True)
-class Start:
-    """Where the robot was when the recording began (map frame), to spawn it there again."""
-
-    pose: Pose2D
-    why: str
 
 
 @dataclass(frozen=True)

@@ -36,8 +36,9 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileSet
 
 if TYPE_CHECKING:
-    from scan2terrain.pipeline import Result, Start
+    from scan2terrain.pipeline import Result
     from scan2terrain.readers.scans import BagPlan
+    from scan2terrain.types import Start
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
 #: file, or several small files (fewer, larger results to send back and merge).
@@ -121,7 +122,6 @@ def plan_clouds(
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
-    from scan2terrain.ingest import local_origin
     from scan2terrain.readers.cloudfile import (
         LAS_SUFFIXES,
         is_url,
@@ -130,6 +130,7 @@ def plan_clouds(
         url_path,
         url_suffix,
     )
+    from scan2terrain.readers.points import local_origin
 
     st = cfg.stream
     per_task = st.chunk_points * CHUNKS_PER_TASK
@@ -168,7 +169,7 @@ def plan_clouds(
             n, fmt = len(cloud.points), cloud.format
         total += n
         notes.append(f"{name}: {n:,} points ({fmt})")
-    origin = local_origin(lo, hi, cfg, notes)
+    origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
     job = Job(
         lattice_for(cfg),
         (float(origin[0]), float(origin[1]), float(origin[2])),
@@ -282,8 +283,8 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
 
 
 def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
-    from scan2terrain.ingest import _hits_of
     from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.points import hits_of
     from scan2terrain.readers.scans import ScanCounts, posed_scans
 
     assert job.bag is not None, "a bag chunk needs the bag's plan"
@@ -294,7 +295,7 @@ def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
     with open_bag([Path(p) for p in chunk.paths]) as bag:
         counts = ScanCounts()
         for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
-            hits = _hits_of(scan)
+            hits = hits_of(scan)
             buf.append(hits)
             held += len(hits)
             if held >= job.step:
@@ -391,8 +392,8 @@ def stream_clouds(
 def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
-    from scan2terrain.ingest import start_of
     from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.points import start_of
     from scan2terrain.readers.scans import ScanCounts, plan_bag, posed_scans
 
     with open_bag(list(bags)) as bag:

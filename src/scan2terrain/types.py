@@ -168,3 +168,11 @@ class Spawn:
     z: float
     yaw: float
     why: str
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where the robot was when the recording began (map frame), to spawn it there again."""
+
+    pose: Pose2D
+    why: str

@@ -1,0 +1,50 @@
+"""What scans and clouds contribute in the map frame, shared by the octree path (ingest.py) and
+the streamed path (stream.py): a posed scan's hits, where the recording started, and the local
+origin subtracted from clouds far from theirs (UTM)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.types import Pose2D, Start
+
+if TYPE_CHECKING:
+    from scan2terrain.readers.scans import PosedScan
+
+#: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
+FAR = 1000.0
+
+
+def hits_of(scan: PosedScan) -> NDArray[np.float64]:
+    """A scan's hits: its points, less a LaserScan's clear-only beams (beyond max range)."""
+    if scan.max_range <= 0:
+        return scan.points
+    rel = scan.points - scan.origin
+    d2 = np.einsum("ij,ij->i", rel, rel)
+    hits: NDArray[np.float64] = scan.points[d2 <= scan.max_range**2]
+    return hits
+
+
+def start_of(scan: PosedScan) -> Start:
+    """Where the robot was at its first posed scan: the sensor's position and heading."""
+    x, y = float(scan.origin[0]), float(scan.origin[1])
+    why = f"from the recorded start ({scan.topic} at {scan.stamp_ns / 1e9:.3f} s)"
+    return Start(Pose2D(x, y, scan.heading), why)
+
+
+def local_origin(
+    lo: NDArray[np.float64], hi: NDArray[np.float64], mode: str, notes: list[str]
+) -> NDArray[np.float64]:
+    """The origin to subtract from clouds spanning ``lo``..``hi`` (x, y, z): their rounded
+    centre when they lie beyond FAR of the origin and ``mode`` (``scans.local_origin``) is
+    auto, else zero; a note says which was subtracted."""
+    if mode != "auto" or max(np.abs(lo).max(), np.abs(hi).max()) <= FAR:
+        return np.zeros(3)
+    origin: NDArray[np.float64] = np.round((np.asarray(lo) + np.asarray(hi)) / 2)
+    notes.append(
+        "local origin ({:.0f}, {:.0f}, {:.0f}) subtracted: world = cloud - origin".format(*origin)
+    )
+    return origin
