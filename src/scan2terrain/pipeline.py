@@ -658,27 +658,20 @@ def walls_world(
         out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary, spawn=spawn
     )
     result.notes.extend(_map_notes(cfg, map_out))
-    with atomic_output(out, overwrite=overwrite) as od:
-        _write_map_pgm(od, cfg, map_out)
-        for sim in sims:
-            name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
-            p = sdf.walls_placement(sim, name, kind, ground, t.height)
-            mdir = f"models/{name}"
-            for rel, data in made.files.items():
-                od.write(f"{mdir}/{rel}", data)
-            od.write(f"{mdir}/model.sdf", made.model_sdf(p, described))
-            od.write(f"{mdir}/model.config", sdf.model_config(p, f"Walls from {source.name}"))
-            pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
-            world = od.write(
-                WORLD_FILES[sim],
-                sdf.world_sdf(
-                    p, world_name="scan2terrain", comment=described + spawn_comment(spawn, pose)
-                ),
-            )
-            yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=(0.0, 0.0), comment=described)
-            result.worlds.append(_world_output(p, world, out / "models", yamls, pose))
-        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
-    return result
+    parts = []
+    for sim in sims:
+        name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
+        p = sdf.walls_placement(sim, name, kind, ground, t.height)
+        files = {f"models/{name}/{rel}": data for rel, data in made.files.items()}
+        files[f"models/{name}/model.sdf"] = made.model_sdf(p, described)
+        files[f"models/{name}/model.config"] = sdf.model_config(p, f"Walls from {source.name}")
+        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
+        world = sdf.world_sdf(
+            p, world_name="scan2terrain", comment=described + spawn_comment(spawn, pose)
+        )
+        parts.append(SimWorld(p, files, world, (0.0, 0.0), described, pose))
+    folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 def _walls(
@@ -1120,31 +1113,25 @@ def _write(
         out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range, spawn=spawn
     )
     result.notes.extend(_map_notes(cfg, map_out))
-    with atomic_output(out, overwrite=overwrite) as od:
-        _write_map_pgm(od, cfg, map_out)
-        for sim in sims:
-            name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
-            p = sdf.placement_for(hm, sim, name, cfg.world.sampling)
-            comment = _comment(source, hm, p) + comment_extra
-            mdir = f"models/{name}"
-            od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}", png)
-            if sim == GZ:
-                for fname, data in sdf.texture_pngs().items():
-                    od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
-            od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
-            od.write(f"{mdir}/model.config", sdf.model_config(p, f"Terrain from {source.name}"))
-            # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
-            pose = spawn_pose(spawn, p.offset, 0.0 if sim == GZ else hm.z_min)
-            world = od.write(
-                WORLD_FILES[sim],
-                sdf.world_sdf(
-                    p, world_name="scan2terrain", comment=comment + spawn_comment(spawn, pose)
-                ),
-            )
-            yamls = _write_map_yaml(od, cfg, map_out, sim=sim, offset=p.offset, comment=comment)
-            result.worlds.append(_world_output(p, world, out / "models", yamls, pose))
-        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
-    return result
+    parts = []
+    for sim in sims:
+        name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
+        p = sdf.placement_for(hm, sim, name, cfg.world.sampling)
+        comment = _comment(source, hm, p) + comment_extra
+        textures = f"models/{name}/{sdf.TEXTURE_DIR}"
+        files = {f"{textures}/{sdf.HEIGHTMAP_FILE}": png}
+        if sim == GZ:
+            files.update({f"{textures}/{f}": data for f, data in sdf.texture_pngs().items()})
+        files[f"models/{name}/model.sdf"] = sdf.model_sdf(hm, p, levels=levels, comment=comment)
+        files[f"models/{name}/model.config"] = sdf.model_config(p, f"Terrain from {source.name}")
+        # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
+        pose = spawn_pose(spawn, p.offset, 0.0 if sim == GZ else hm.z_min)
+        world = sdf.world_sdf(
+            p, world_name="scan2terrain", comment=comment + spawn_comment(spawn, pose)
+        )
+        parts.append(SimWorld(p, files, world, p.offset, comment, pose))
+    folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 def _write_tiled(
@@ -1201,34 +1188,73 @@ def _write_tiled(
     result.notes.extend(_map_notes(cfg, map_out))
     world_comment = _tiled_comment(source, tiled, base) + comment_extra
     textures = sdf.texture_pngs()
+    files: dict[str, bytes] = {}
+    placements = []
+    for spec, hm in tiled.tiles():
+        name = f"{base}_{spec.row}_{spec.col}"
+        p = sdf.placement_for(hm, GZ, name, cfg.world.sampling)
+        folder = f"models/{name}"
+        files[f"{folder}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}"] = hm.png()
+        files.update({f"{folder}/{sdf.TEXTURE_DIR}/{f}": data for f, data in textures.items()})
+        comment = _tile_comment(source, tiled, spec, hm) + comment_extra
+        files[f"{folder}/model.sdf"] = sdf.model_sdf(hm, p, levels=levels, comment=comment)
+        description = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
+        files[f"{folder}/model.config"] = sdf.model_config(p, description)
+        placements.append(p)
+    pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
+    world = sdf.tiled_world_sdf(
+        placements, world_name="scan2terrain", comment=world_comment + spawn_comment(spawn, pose)
+    )
+    whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
+    part = SimWorld(whole, files, world, (0.0, 0.0), world_comment, pose)
+    plan = WorldFolder(source, result, [part], map_out, preview, extra or {})
+    return write_world_folder(plan, out, cfg, overwrite=overwrite)
+
+
+@dataclass(frozen=True)
+class SimWorld:
+    """One simulator's share of a world folder: its models' files and its world file."""
+
+    placement: sdf.Placement  #: where the terrain or walls sit (for the report)
+    files: dict[str, bytes]  #: relative path (models/<name>/...) -> bytes
+    world: bytes  #: the world file (world_gz.sdf or world_classic.world)
+    map_offset: tuple[float, float]  #: map frame -> this world's frame, for map/*.yaml
+    comment: str  #: what the map YAMLs say about where they come from
+    spawn: tuple[float, float, float, float, float, float]  #: the spawn pose in this world
+
+
+@dataclass(frozen=True)
+class WorldFolder:
+    """Everything a world folder holds, computed; :func:`write_world_folder` writes it."""
+
+    source: Path
+    result: Result  #: the report so far (notes are added to, never replaced)
+    worlds: list[SimWorld]
+    map_out: OccupancyGrid | None  #: the navigation map in world axes, or None
+    preview: Preview
+    extra: dict[str, bytes]  #: more files at the top (octree.bt, occupied voxels)
+
+
+def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite: bool) -> Result:
+    """The one writer of world folders, atomically: map/, each simulator's models and world,
+    spawn.yaml, preview, extra files, the effective config. Returns the completed report."""
+    result = folder.result
     with atomic_output(out, overwrite=overwrite) as od:
-        _write_map_pgm(od, cfg, map_out)
-        placements = []
-        for spec, hm in tiled.tiles():
-            name = f"{base}_{spec.row}_{spec.col}"
-            p = sdf.placement_for(hm, GZ, name, cfg.world.sampling)
-            mdir = f"models/{name}"
-            od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}", hm.png())
-            for fname, data in textures.items():
-                od.write(f"{mdir}/{sdf.TEXTURE_DIR}/{fname}", data)
-            comment = _tile_comment(source, tiled, spec, hm) + comment_extra
-            od.write(f"{mdir}/model.sdf", sdf.model_sdf(hm, p, levels=levels, comment=comment))
-            description = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
-            od.write(f"{mdir}/model.config", sdf.model_config(p, description))
-            placements.append(p)
-        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
-        world = od.write(
-            WORLD_FILES[GZ],
-            sdf.tiled_world_sdf(
-                placements,
-                world_name="scan2terrain",
-                comment=world_comment + spawn_comment(spawn, pose),
-            ),
+        _write_map_pgm(od, cfg, folder.map_out)
+        for part in folder.worlds:
+            sim = part.placement.simulator
+            for rel, data in part.files.items():
+                od.write(rel, data)
+            world = od.write(WORLD_FILES[sim], part.world)
+            yamls = _write_map_yaml(
+                od, cfg, folder.map_out, sim=sim, offset=part.map_offset, comment=part.comment
+            )
+            result.worlds.append(
+                _world_output(part.placement, world, out / "models", yamls, part.spawn)
+            )
+        _write_tail(
+            od, result, cfg, source=folder.source, preview=folder.preview, extra=folder.extra
         )
-        yamls = _write_map_yaml(od, cfg, map_out, sim=GZ, offset=(0.0, 0.0), comment=world_comment)
-        whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
-        result.worlds.append(_world_output(whole, world, out / "models", yamls, pose))
-        _write_tail(od, result, cfg, source=source, preview=preview, extra=extra)
     return result
 
 
