@@ -12,7 +12,7 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from scan2terrain.config import (
     FILLS,
@@ -23,6 +23,11 @@ from scan2terrain.config import (
     UNKNOWN_POLICIES,
     load_config,
 )
+
+if TYPE_CHECKING:
+    from scan2terrain.config import Config
+    from scan2terrain.pipeline import Result
+    from scan2terrain.readers.scans import ScanCounts
 
 EXAMPLES = r"""
 examples:
@@ -729,7 +734,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_scans(args: argparse.Namespace, cfg: Any) -> int:
+def _run_scans(args: argparse.Namespace, cfg: Config) -> int:
     from scan2terrain import ingest
 
     if args.command == "inspect":
@@ -789,7 +794,7 @@ class ProgressBar:
         if self._bar is not None:
             self._bar.close()
 
-    def update(self, counts: Any, total: int) -> None:
+    def update(self, counts: ScanCounts, total: int) -> None:
         if not self.enabled:
             return
         if self._bar is None:
@@ -869,13 +874,13 @@ def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
     ]
 
 
-def report(result: Any) -> str:
+def report(result: Result) -> str:
     """How to open what was written, for a human."""
     from scan2terrain.pipeline import minus
 
     out = result.out
-    walls = getattr(result, "geometry", "heightmap") != "heightmap"
-    rows, cols = getattr(result, "tiles", (1, 1))
+    walls = result.geometry != "heightmap"
+    rows, cols = result.tiles
     side = f"{result.heightmap_side}x{result.heightmap_side} px"
     ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
     lines = [
@@ -915,7 +920,7 @@ def report(result: Any) -> str:
             lines += _spawn_lines(p.simulator, w.spawn)
     if result.preview is not None:
         lines.append(f"  preview ({result.preview_label}): {result.preview}")
-    for note in getattr(result, "notes", []):
+    for note in result.notes:
         lines.append(f"  {note}")
     lines.append(f"  effective config: {result.config}")
     return "\n".join(lines)
