@@ -47,7 +47,7 @@ def end_to_end(exe: Path, out: Path, runs: int) -> list[tuple[str, list[float], 
 
 
 def steps(runs: int) -> list[tuple[str, list[float], float | None]]:
-    from scan2terrain import pipeline
+    from scan2terrain import steps, world
     from scan2terrain.config import Config
     from scan2terrain.exporters import meshfile, sdf
     from scan2terrain.geometry import mesh, outlines
@@ -55,13 +55,13 @@ def steps(runs: int) -> list[tuple[str, list[float], float | None]]:
     from scan2terrain.readers import read_map_yaml
 
     meta, grid = read_map_yaml(WILLOW)
-    trinary = pipeline.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    walls = pipeline.filter_occupancy(trinary, Config()) == 100
+    trinary = steps.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
+    walls = steps.filter_occupancy(trinary, Config()) == 100
     r, origin = grid.resolution, grid.origin
     ground = sdf.Ground((0.0, 0.0), (1.0, 1.0))
     p = sdf.walls_placement("gz", "bench", "boxes", ground, 2.0)
     cells = merge_boxes(walls)
-    poses = pipeline._box_poses(cells, r, origin)
+    poses = world._box_poses(cells, r, origin)
     polygons = outlines.trace(walls, r, origin)
     rings = [poly.rings() for poly in polygons]
     m = mesh.extrude(polygons, 2.0)

@@ -40,15 +40,15 @@ def best_time(function: Callable[[], Any], runs: int) -> float:
 
 def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
     """Best time of each step on one map, and its counts."""
-    from scan2terrain import pipeline
+    from scan2terrain import steps
     from scan2terrain.config import Config
     from scan2terrain.exporters import meshfile
     from scan2terrain.geometry import mesh, outlines
     from scan2terrain.readers import read_map_yaml
 
     meta, grid = read_map_yaml(path)
-    trinary = pipeline.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    occ = pipeline.filter_occupancy(trinary, Config()) == 100
+    trinary = steps.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
+    occ = steps.filter_occupancy(trinary, Config()) == 100
     r, origin = grid.resolution, grid.origin
     exact = outlines.trace(occ, r, origin)
     simple = outlines.simplify(exact, r, resolution=r, origin=origin)  # also warms numba up

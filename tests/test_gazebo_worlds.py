@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scan2terrain import pipeline
+from scan2terrain import grids, pipeline, world
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid
@@ -46,14 +46,14 @@ def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
 
 def build(
     source: Path, out: Path, *, command: str = "map2world", **overrides: object
-) -> pipeline.Result:
+) -> world.Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
     run = pipeline.map2world if command == "map2world" else pipeline.image2world
     return run(source, out, cfg)
 
 
 def check_world(
-    result: pipeline.Result,
+    result: world.Result,
     reference: OccupancyGrid,
     tmp: Path,
     *,
@@ -92,7 +92,7 @@ def test_real_map_unfiltered_lands_in_the_map_frame(tmp_path: Path, name: str) -
     """Raw map cells (no filter) against the world, through the ORIGINAL map YAML."""
     result = build(MAPS[name], tmp_path / "w", **{"filter.enabled": False})
     _, grid = read_map_yaml(MAPS[name])
-    meta_thresholds = pipeline.to_trinary(grid.data)
+    meta_thresholds = grids.to_trinary(grid.data)
     checked = check_world(result, grid.with_data(meta_thresholds), tmp_path)
     assert checked["gz"] > 1000 and checked["classic"] == checked["gz"]
 
@@ -107,10 +107,10 @@ def test_filtered_map_export_lines_up_with_the_world(tmp_path: Path, name: str) 
         assert w.map_yaml is not None
         _, exported = read_map_yaml(w.map_yaml)
         # The exported map is already in this simulator's world frame: offset (0, 0).
-        single = pipeline.Result(
+        single = world.Result(
             out=result.out,
             worlds=[
-                pipeline.WorldOutput(
+                world.WorldOutput(
                     w.placement.__class__(**{**w.placement.__dict__, "offset": (0.0, 0.0)}),
                     w.world,
                     w.models,

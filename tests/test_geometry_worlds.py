@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scan2terrain import pipeline
+from scan2terrain import grids, pipeline, world
 from scan2terrain.cli import main
 from scan2terrain.config import load_config
 from scan2terrain.exporters.sdf import GROUND_MARGIN
@@ -41,7 +41,7 @@ H = 2.0  # wall height used throughout
 GEOMETRIES = ("boxes", "polylines", "mesh")
 
 
-def build(source: Path, out: Path, geometry: str, **overrides: object) -> pipeline.Result:
+def build(source: Path, out: Path, geometry: str, **overrides: object) -> world.Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": geometry, **overrides})
     return pipeline.map2world(source, out, cfg)
 
@@ -219,7 +219,7 @@ def check_surface(
 
 
 def check_walls(
-    result: pipeline.Result, tmp: Path, *, reference: OccupancyGrid | None = None
+    result: world.Result, tmp: Path, *, reference: OccupancyGrid | None = None
 ) -> dict[str, int]:
     """Check every world of ``result``; the walls must be the occupied cells of ``reference``
     (default: the map the command wrote for that world). Returns the wall geometries per sim."""
@@ -344,7 +344,7 @@ def test_real_map_polylines_build_in_gz_common(
 def test_real_map_walls_with_unfiltered_source(tmp_path: Path) -> None:
     """Without a filter, the walls are the map_server cells of the ORIGINAL map YAML."""
     _, source = read_map_yaml(MAPS["tb3"])
-    source = source.with_data(pipeline.to_trinary(source.data))
+    source = source.with_data(grids.to_trinary(source.data))
     for geometry in GEOMETRIES:
         result = build(MAPS["tb3"], tmp_path / geometry, geometry, **{"filter.enabled": False})
         check_walls(result, tmp_path / geometry, reference=source)
@@ -464,8 +464,8 @@ def test_map_without_walls_is_a_ground_alone(
     out = tmp_path / "w"
     code = main(["map2world", str(yaml_path), "-o", str(out), "--geometry", geometry])
     assert code == 0, capsys.readouterr().err
-    for world in ("world_gz.sdf", "world_classic.world"):
-        _, shapes = probe_shapes(out / world, [out / "models"], tmp_path / world)
+    for name in ("world_gz.sdf", "world_classic.world"):
+        _, shapes = probe_shapes(out / name, [out / "models"], tmp_path / name)
         assert sorted((s.name, s.type) for s in shapes) == [
             ("ground_collision", "box"),
             ("ground_visual", "plane"),

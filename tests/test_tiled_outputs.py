@@ -21,7 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from scan2terrain import pipeline
+from scan2terrain import pipeline, world
 from scan2terrain.cli import COMMAND_DEFAULTS
 from scan2terrain.config import Config, load_config
 from scan2terrain.errors import ConfigError
@@ -69,7 +69,7 @@ def height_world(
     origin: Pose2D = ORIGIN,
     res: float = RES,
     **overrides: object,
-) -> pipeline.Result:
+) -> world.Result:
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
     return pipeline.height_world(grid, Path("hills.xyz"), out, config(**overrides), overwrite=False)
 
@@ -81,7 +81,7 @@ def centres(
     return origin.transform((np.asarray(cols) + 0.5) * res, (np.asarray(rows) + 0.5) * res)
 
 
-def collisions(result: pipeline.Result, tmp: Path) -> dict[str, HeightmapProbe]:
+def collisions(result: world.Result, tmp: Path) -> dict[str, HeightmapProbe]:
     """The world's collision heightmaps by model name, as Gazebo's code loads them."""
     (w,) = result.worlds
     assert w.placement.simulator == "gz"
@@ -95,7 +95,7 @@ def collisions(result: pipeline.Result, tmp: Path) -> dict[str, HeightmapProbe]:
 
 
 def check_tiled_terrain(
-    result: pipeline.Result,
+    result: world.Result,
     tmp: Path,
     heights: np.ndarray,
     origin: Pose2D,

@@ -26,8 +26,8 @@ from scan2terrain.config import (
 
 if TYPE_CHECKING:
     from scan2terrain.config import Config
-    from scan2terrain.pipeline import Result
     from scan2terrain.readers.scans import ScanCounts
+    from scan2terrain.world import Result
 
 EXAMPLES = r"""
 examples:
@@ -707,6 +707,7 @@ def _drop_stdout() -> None:
 def _run(args: argparse.Namespace) -> int:
     from scan2terrain import pipeline
     from scan2terrain.config import load_config
+    from scan2terrain.steps import refuse_existing
 
     overrides: dict[str, Any] = {
         k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
@@ -715,7 +716,7 @@ def _run(args: argparse.Namespace) -> int:
     out = getattr(args, "out", None)
     side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
     if out is not None and side_inputs:  # files besides the command's input never go either
-        pipeline.refuse_existing(out, args.overwrite, tuple(side_inputs))
+        refuse_existing(out, args.overwrite, tuple(side_inputs))
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":
@@ -876,7 +877,7 @@ def _spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
 
 def report(result: Result) -> str:
     """How to open what was written, for a human."""
-    from scan2terrain.pipeline import minus
+    from scan2terrain.steps import minus
 
     out = result.out
     walls = result.geometry != "heightmap"

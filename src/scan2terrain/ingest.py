@@ -22,16 +22,11 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.pipeline import (
-    Result,
-    ScanProgress,
-    grid_options,
-    occupancy_world,
-    refuse_existing,
-    voxels_world,
-)
+from scan2terrain.pipeline import ScanProgress, occupancy_world, voxels_world
 from scan2terrain.readers.points import hits_of, local_origin, start_of
+from scan2terrain.steps import grid_options, refuse_existing
 from scan2terrain.types import OccupancyGrid, Pose2D, Start, Transform
+from scan2terrain.world import Result
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree

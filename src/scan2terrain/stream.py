@@ -36,9 +36,9 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileSet
 
 if TYPE_CHECKING:
-    from scan2terrain.pipeline import Result
     from scan2terrain.readers.scans import BagPlan
     from scan2terrain.types import Start
+    from scan2terrain.world import Result
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
 #: file, or several small files (fewer, larger results to send back and merge).
@@ -421,7 +421,8 @@ def streamed_world(
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid."""
-    from scan2terrain.pipeline import fill_holes, height_world, occupancy_world, refuse_large_grid
+    from scan2terrain.pipeline import height_world, occupancy_world
+    from scan2terrain.steps import fill_holes, refuse_large_grid
 
     tiles = streamed.tiles
     if tiles.points == 0:

@@ -17,7 +17,7 @@ from hypothesis.extra.numpy import arrays
 from scipy import ndimage, sparse
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from scan2terrain import pipeline
+from scan2terrain import steps
 from scan2terrain.config import Config
 from scan2terrain.geometry.boxes import box_extents, merge_boxes, rasterize_boxes
 from scan2terrain.readers import read_map_yaml
@@ -142,8 +142,8 @@ def fewest_covering_rectangles(occ: np.ndarray) -> tuple[float, int]:
 
 def filtered_map(name: str) -> np.ndarray:
     meta, grid = read_map_yaml(MAPS[name])
-    trinary = pipeline.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    return pipeline.filter_occupancy(trinary, Config()) == 100
+    trinary = steps.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
+    return steps.filter_occupancy(trinary, Config()) == 100
 
 
 # --- small hand-made grids ----------------------------------------------------------------------

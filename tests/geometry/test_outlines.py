@@ -22,8 +22,8 @@ from scipy import ndimage
 
 from scan2terrain.config import Config
 from scan2terrain.geometry.outlines import Polygon, rasterize, simplify, trace
-from scan2terrain.pipeline import classify, filter_occupancy
 from scan2terrain.readers import read_map_yaml
+from scan2terrain.steps import classify, filter_occupancy
 from scan2terrain.types import OCCUPIED, Pose2D
 from tests.conftest import MAPS
 
@@ -48,7 +48,7 @@ def signed_area(ring: NDArray[np.float64]) -> float:
 @functools.cache
 def default_filtered(name: str) -> tuple[NDArray[np.bool_], float, Pose2D]:
     """A fixture map's occupied cells after classification and the default filter, as
-    ``map2world`` computes them (pipeline.classify, pipeline.filter_occupancy)."""
+    ``map2world`` computes them (steps.classify, steps.filter_occupancy)."""
     meta, g = read_map_yaml(MAPS[name])
     trinary = classify(g, meta.mode, meta.occupied_thresh, meta.free_thresh)
     occupied = filter_occupancy(trinary, Config()) == OCCUPIED

@@ -1,0 +1,299 @@
+"""Named steps the commands share: filtering and previews, canvas and classification, the
+terrain layout (one heightmap or tiles), the spawn search, and the checks every command runs
+before any work (option combinations, grid sizes, output paths)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import ConfigError
+from scan2terrain.exporters.heightmap import CLASSIC, Heightmap, make_heightmap
+from scan2terrain.exporters.output import OutputDir
+from scan2terrain.exporters.preview import preview_png
+from scan2terrain.exporters.tiles import TiledHeightmap, make_tiled_heightmap
+from scan2terrain.filters import (
+    majority_filter,
+    median_filter,
+    paper_median_filter,
+    remove_speckles,
+    thin_wall_median_filter,
+)
+from scan2terrain.grids import (
+    canvas,
+    from_rank,
+    to_rank,
+    to_trinary,
+    upsample,
+)
+from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
+from scan2terrain.grids.spawn import find_spawn
+from scan2terrain.types import (
+    HeightGrid,
+    OccupancyGrid,
+    Pose2D,
+    Spawn,
+    Start,
+)
+
+if TYPE_CHECKING:
+    pass
+
+#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
+
+
+ScalarT = TypeVar("ScalarT", bound=np.generic)
+
+#: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
+Terrain = Heightmap | TiledHeightmap
+
+
+@dataclass(frozen=True)
+class Preview:
+    """preview.png and what it shows."""
+
+    png: bytes
+    label: str
+
+
+def filtering(cfg: Config, *, occupancy: bool) -> bool:
+    """Whether the configured filter changes anything: a filter kind, or for occupancy grids
+    also speckle removal (heights and greys have no speckles)."""
+    f = cfg.filter
+    return f.enabled and (f.kind != "none" or (occupancy and f.speckle_min_cells > 1))
+
+
+def make_preview(
+    before: NDArray[np.generic], after: NDArray[np.generic], cfg: Config, *, occupancy: bool
+) -> Preview:
+    """Original | filtered | difference when a filter ran; else the input alone (labelled so)."""
+    if filtering(cfg, occupancy=occupancy):
+        return Preview(
+            preview_png(before, after, occupancy=occupancy), "original | filtered | difference"
+        )
+    return Preview(preview_png(before, None, occupancy=occupancy), "the input; filtering off")
+
+
+# --- steps -----------------------------------------------------------------------------------
+
+
+def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]:
+    """Apply the configured filter and speckle removal to a trinary grid."""
+    if not filtering(cfg, occupancy=True):
+        return trinary
+    f = cfg.filter
+    rank = _apply_filter(to_rank(trinary), f.kind, f.size, fallback="majority")
+    if f.speckle_min_cells > 1:
+        rank = remove_speckles(
+            rank,
+            value=RANK_OCCUPIED,
+            min_cells=f.speckle_min_cells,
+            replace_with=RANK_FREE,
+        )
+    return from_rank(rank)
+
+
+def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:
+    """Apply the configured filter to a grey image (median fallback: greys are ordered)."""
+    if not filtering(cfg, occupancy=False):
+        return values
+    return _apply_filter(values, cfg.filter.kind, cfg.filter.size, fallback="median")
+
+
+def _apply_filter(
+    a: NDArray[ScalarT], kind: str, size: int, *, fallback: Literal["majority", "median"]
+) -> NDArray[ScalarT]:
+    if kind == "median":
+        return median_filter(a, size=size)
+    if kind == "majority":
+        return majority_filter(a, size=size)
+    if kind == "paper":
+        return paper_median_filter(a, fallback=fallback)
+    if kind == "thin_wall":
+        return thin_wall_median_filter(a, fallback=fallback)
+    return a
+
+
+def terrain_heightmap(
+    heights: NDArray[np.float32],
+    resolution: float,
+    origin: Pose2D,
+    cfg: Config,
+    *,
+    pad_height: float,
+) -> Heightmap:
+    """World-aligned heights (metres, every cell known) -> up-sampled (``terrain.upsample``)
+    -> the heightmap image (``terrain.bit_depth``), padded at ``pad_height``."""
+    t = cfg.terrain
+    fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
+    return make_heightmap(
+        HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin),
+        bit_depth=t.bit_depth,
+        pad_height=pad_height,
+    )
+
+
+def terrain_layout(
+    heights: NDArray[np.float32],
+    resolution: float,
+    origin: Pose2D,
+    cfg: Config,
+    *,
+    pad_height: float,
+) -> Terrain:
+    """As :func:`terrain_heightmap`, but a grid of more than ``terrain.max_side`` samples a side
+    (after up-sampling) becomes terrain tiles (:class:`~.exporters.tiles.TiledHeightmap`)."""
+    t = cfg.terrain
+    fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
+    grid = HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin)
+    return heightmap_or_tiles(grid, cfg, pad_height=pad_height)
+
+
+def heightmap_or_tiles(grid: HeightGrid, cfg: Config, *, pad_height: float) -> Terrain:
+    """One heightmap (``terrain.bit_depth``) when ``grid`` (yaw 0) fits ``terrain.max_side``,
+    else tiles of that side sharing their border samples."""
+    t = cfg.terrain
+    if max(grid.shape) <= t.max_side:
+        return make_heightmap(grid, bit_depth=t.bit_depth, pad_height=pad_height)
+    return make_tiled_heightmap(
+        grid, max_side=t.max_side, bit_depth=t.bit_depth, pad_height=pad_height
+    )
+
+
+def place_on_canvas(
+    data: NDArray[ScalarT], origin: Pose2D, resolution: float, cfg: Config, *, fill: int
+) -> tuple[NDArray[ScalarT], Pose2D]:
+    """The paper's crop/extend and offset options (``cfg.canvas``), keeping georeference."""
+    c = cfg.canvas
+    return canvas(
+        data,
+        origin,
+        resolution,
+        width=c.width,
+        height=c.height,
+        offset_x=c.offset_x,
+        offset_y=c.offset_y,
+        fill=fill,
+    )
+
+
+def classify(
+    grid: OccupancyGrid, mode: str, occupied_thresh: float, free_thresh: float
+) -> NDArray[np.int8]:
+    """map_server values to trinary; raw maps are classified with their own thresholds."""
+    if mode == "raw":
+        return to_trinary(
+            grid.data, occupied_above=100 * occupied_thresh, free_below=100 * free_thresh
+        )
+    return to_trinary(grid.data)
+
+
+# --- commands --------------------------------------------------------------------------------
+
+
+def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
+    """Unknown cells of a 2.5D grid filled as ``octree.fill`` says (none, nearest, idw)."""
+    from scan2terrain.grids import projection
+
+    o = cfg.octree
+    if o.fill == "nearest":
+        reach = o.fill_max_distance
+        if reach is None:
+            reach = max(1.0, 4 * heights.resolution)
+        return projection.fill_nearest(heights, max_distance_m=reach)
+    if o.fill == "idw":
+        return projection.fill_idw(heights)
+    return heights
+
+
+def filter_text(cfg: Config) -> str:
+    f = cfg.filter
+    if not filtering(cfg, occupancy=True):
+        return "no filter"
+    text = f"filter {f.kind}"
+    if f.speckle_min_cells > 1:
+        text += f", specks under {f.speckle_min_cells} cells removed"
+    return text
+
+
+def heightmap_only(cfg: Config, what: str) -> Config:
+    """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
+    refuses wall geometries and what no heightmap can be (:func:`heightmap_options`)."""
+    cfg = cfg.for_grid("heights")
+    heightmap_options(cfg)
+    if cfg.world.geometry != "heightmap":
+        raise ConfigError(
+            f"world.geometry {cfg.world.geometry} needs an occupancy grid (map2world, or"
+            f" octree/bag/cloud2world with octree.grid occupancy); {what} makes heightmaps only"
+        )
+    return cfg
+
+
+def refuse_large_grid(
+    source: Path, what: str, rows: int, cols: int, *, resolution: float, cfg: Config
+) -> None:
+    """Refuse a grid of ``rows`` x ``cols`` cells over ``max_pixels`` before it is allocated
+    (the octree's and the streamed path's, from the ``what`` it spans)."""
+    if rows * cols > cfg.max_pixels:
+        raise ConfigError(
+            f"{source}: the {what} span {cols} x {rows} cells of {resolution:g} m, over"
+            f" max_pixels {cfg.max_pixels}: choose a coarser --resolution (files in different"
+            " coordinate systems also spread this far)"
+        )
+
+
+def grid_options(cfg: Config) -> None:
+    """Before any work, for the commands whose grid comes from voxels or points (octree2world,
+    bag2world, cloud2world): refuse what the world they will write cannot be."""
+    grid = "occupancy" if cfg.octree.grid == "occupancy" else "heights"
+    if cfg.for_grid(grid).world.geometry == "heightmap":
+        heightmap_options(cfg)
+
+
+def minus(name: str, v: float) -> str:
+    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0."""
+    if v == 0:
+        return name
+    return f"{name} - {v!r}" if v > 0 else f"{name} + {-v!r}"
+
+
+def heightmap_options(cfg: Config) -> None:
+    """Refuse, before any work, heightmap options a chosen simulator cannot load: every command
+    that writes a heightmap checks the same things, with the same message."""
+    if cfg.terrain.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
+        raise ConfigError(
+            "Gazebo Classic reads only the first byte of each heightmap pixel: use "
+            "--bit-depth 8 with --simulator classic or both (16-bit is gz-sim only)"
+        )
+
+
+def refuse_existing(out: Path, overwrite: bool, inputs: tuple[Path | str, ...] = ()) -> None:
+    # Checked before any work so a refused run costs nothing; OutputDir checks again. The
+    # target is resolved; one that is or contains an input (``inputs``), ``/``, or the current
+    # or home folder or a parent of them is refused even under --overwrite.
+    OutputDir.check_target(out, overwrite, inputs)
+
+
+def spawn_for(
+    heights: NDArray[np.floating],
+    resolution: float,
+    origin: Pose2D,
+    start: Start | None,
+    *,
+    ground: NDArray[np.bool_] | None = None,
+    free: NDArray[np.bool_] | None = None,
+) -> Spawn:
+    """The spawn spot of a world's ground (map frame; see grids/spawn.py): searched from the
+    robot's recorded start when there is one, else from the map origin (or the centre)."""
+    if start is None:
+        return find_spawn(heights, resolution, origin, ground=ground, free=free)
+    p = start.pose
+    return find_spawn(
+        heights, resolution, origin, preferred=(p.x, p.y), yaw=p.yaw, ground=ground,
+        free=free, why=start.why,
+    )  # fmt: skip
