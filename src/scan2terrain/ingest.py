@@ -24,7 +24,7 @@ from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.pipeline import ScanProgress, occupancy_world, voxels_world
 from scan2terrain.readers.points import hits_of, local_origin, start_of
-from scan2terrain.steps import grid_options, refuse_existing
+from scan2terrain.steps import grid_options, new_tree, refuse_existing
 from scan2terrain.types import OccupancyGrid, Pose2D, Start, Transform
 from scan2terrain.world import Result
 
@@ -64,15 +64,6 @@ def streaming(cfg: Config) -> bool:
             "merge exactly): drop --stream/--workers/--scheduler, or insert end points"
         )
     return True
-
-
-def new_tree(cfg: Config) -> VoxelOctree:
-    from scan2terrain.octree.tree import SensorModel, VoxelOctree
-
-    o = cfg.octree
-    return VoxelOctree(
-        o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
-    )
 
 
 # --- bags --------------------------------------------------------------------------------------

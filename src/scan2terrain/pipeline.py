@@ -38,21 +38,6 @@ from scan2terrain.grids import (
     axis_align,
     invert_occupancy,
 )
-from scan2terrain.types import (
-    FREE,
-    UNKNOWN,
-    HeightGrid,
-    OccupancyGrid,
-    Pose2D,
-    Start,
-)
-
-if TYPE_CHECKING:
-    from scan2terrain.octree.tree import VoxelOctree
-    from scan2terrain.readers.dem import Dem
-    from scan2terrain.readers.scans import ScanCounts
-
-#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 from scan2terrain.steps import (
     Terrain,
     classify,
@@ -66,11 +51,20 @@ from scan2terrain.steps import (
     heightmap_or_tiles,
     make_preview,
     minus,
+    new_tree,
     place_on_canvas,
     refuse_existing,
     refuse_large_grid,
     spawn_for,
     terrain_layout,
+)
+from scan2terrain.types import (
+    FREE,
+    UNKNOWN,
+    HeightGrid,
+    OccupancyGrid,
+    Pose2D,
+    Start,
 )
 from scan2terrain.world import (
     Result,
@@ -79,6 +73,13 @@ from scan2terrain.world import (
     write_terrain,
 )
 
+if TYPE_CHECKING:
+    from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.readers.dem import Dem
+    from scan2terrain.readers.scans import ScanCounts
+
+
+#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 #: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 ScanProgress = Callable[["ScanCounts", int], None]
 
@@ -281,14 +282,11 @@ def _occupied_voxels(
 
 def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None) -> VoxelOctree:
     """Ray-cast every scan of an OctoMap text scan file into a new octree."""
-    from scan2terrain.octree.tree import SensorModel, VoxelOctree
     from scan2terrain.readers.octomap_scan import read_scans
     from scan2terrain.readers.scans import ScanCounts
 
     o = cfg.octree
-    tree = VoxelOctree(
-        o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
-    )
+    tree = new_tree(cfg)
     counts = ScanCounts()
     for scan in read_scans(source):
         try:

@@ -42,10 +42,7 @@ from scan2terrain.types import (
 )
 
 if TYPE_CHECKING:
-    pass
-
-#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
-
+    from scan2terrain.octree.tree import VoxelOctree
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
@@ -297,3 +294,13 @@ def spawn_for(
         heights, resolution, origin, preferred=(p.x, p.y), yaw=p.yaw, ground=ground,
         free=free, why=start.why,
     )  # fmt: skip
+
+
+def new_tree(cfg: Config) -> VoxelOctree:
+    """An empty voxel octree with the config's resolution and OctoMap sensor model."""
+    from scan2terrain.octree.tree import SensorModel, VoxelOctree
+
+    o = cfg.octree
+    return VoxelOctree(
+        o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
+    )

@@ -14,7 +14,6 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +29,7 @@ from scan2terrain.grids import (
     axis_align,
 )
 from scan2terrain.grids.spawn import FOOTPRINT
+from scan2terrain.steps import Preview, Terrain, filter_text, minus, spawn_for
 from scan2terrain.types import (
     FREE,
     OCCUPIED,
@@ -39,12 +39,6 @@ from scan2terrain.types import (
     Spawn,
     Start,
 )
-
-if TYPE_CHECKING:
-    pass
-
-#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
-from scan2terrain.steps import Preview, Terrain, filter_text, minus, spawn_for
 
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 CONFIG_FILE = "scan2terrain.yaml"
