@@ -54,9 +54,31 @@ Mutation = tuple[str, bytes]
 
 #: Cases that still fail, each for a bug outside the readers, with the reason. The test wants
 #: them to fail as described (and says so when one passes: then remove it here).
-KNOWN_BUGS = {
-    "bt/res-tiny": "grids/spawn.py sizes its search window as 1.5 m / resolution cells "
-    "(MemoryError / OverflowError in scipy's maximum_filter at 1e-12 m cells)",
+KNOWN_BUGS: dict[str, str] = {}
+
+#: Cases that must be refused (exit 2), not read: values that make no sense, which exited 0
+#: with an absurd world or a silently wrong one (issue 13).
+MUST_REFUSE = {
+    "bt/res-tiny",  # 1e-12 m voxels
+    "bt/res-e20",  # 1e20 m voxels
+    "bt/res-e-300",
+    "bt/res-max",  # 1.7e308
+    "las/x_scale-zero",  # every x at the offset
+    "las/x_scale-neg",  # the cloud mirrored
+    "las/x_offset-nan",
+    "laz/x_scale-zero",
+    "pcd-ascii/FIELDS-dup",  # z taken from another column
+    "pcd-binary/FIELDS-dup",
+    "map-pgm/maxval-low",  # samples above maxval clamped: unknown cells became free
+    "dem/photometric-ycbcr",
+    "dem/compression-deflate",
+    "dem/geokeys-none",  # degrees read as metres
+    "map-yaml/resolution-bigint",
+    "map-yaml/origin-bigint",
+    "map-yaml/deep",
+    "map-yaml/image-nul",
+    "map-yaml/image-long",
+    "scan-dat/long-line",
 }
 
 
@@ -144,7 +166,8 @@ def las_header_mutations(data: bytes) -> list[Mutation]:
         *packed("point_format", data, 104, "<B", {"huge": 0xFF}),
         *packed("record_length", data, 105, "<H", {"zero": 0, "huge": 0xFFFF}),
         *packed("point_count", data, 107, "<I", U32),
-        *packed("x_scale", data, 131, "<d", {"zero": 0.0, "nan": math.nan}),
+        *packed("x_scale", data, 131, "<d", {"zero": 0.0, "nan": math.nan, "neg": -0.01}),
+        *packed("x_offset", data, 155, "<d", {"nan": math.nan}),
     ]
 
 
@@ -242,6 +265,7 @@ def pcd_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
     out += texts("HEIGHT", data, rb"\nHEIGHT (\S+)", {"zero": b"0"})
     out += texts("SIZE", data, rb"\nSIZE (\S+)", {"zero": b"0", "odd": b"3"})
     out += texts("COUNT", data, rb"\nCOUNT (\S+)", {"huge": b"99999"})
+    out += texts("FIELDS", data, rb"\nFIELDS x y (\S+)", {"dup": b"x"})
     out += flips(data, rng, 3, lo=end)
     out += splices(data, rng, 2, lo=end)
     if b"binary_compressed" in data[:end]:  # the block's sizes, uint32 after the header
@@ -355,7 +379,15 @@ def yaml_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
         rb"origin: (\[.*\])",
         {"nan": b"[.nan, 0, 0]", "huge": b"[1e308, -1e308, 0]", "short": b"[1]"},
     )
-    out += texts("image", data, rb"image: (\S+)", {"missing": b"nothere.pgm", "self": b"m.yaml"})
+    out += texts(
+        "image",
+        data,
+        rb"image: (\S+)",
+        {"missing": b"nothere.pgm", "self": b"m.yaml", "nul": b'"m\\0.pgm"', "long": b"a" * 300},
+    )
+    out += texts("resolution", data, rb"resolution: (\S+)", {"bigint": b"9" * 400})
+    out += texts("origin", data, rb"origin: (\[.*\])", {"bigint": b"[" + b"9" * 400 + b", 0, 0]"})
+    out.append(("deep", data + b"x: " + b"[" * 5000 + b"]" * 5000 + b"\n"))
     out += texts("occupied", data, rb"occupied_thresh: (\S+)", {"nan": b".nan", "huge": b"7"})
     out.append(("anchors", b"a: &a [*a]\n" + data))
     out += flips(data, rng, 2)
@@ -369,7 +401,7 @@ def pgm_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
     for group, field, values in (
         (1, "width", {"zero": b"0", "huge": b"999999999", "wide": b"70000"}),
         (2, "height", {"neg": b"-5", "huge": b"999999999"}),
-        (3, "maxval", {"zero": b"0", "huge": b"70000", "word": b"x"}),
+        (3, "maxval", {"zero": b"0", "huge": b"70000", "word": b"x", "low": b"200"}),
     ):
         out += [
             (f"{field}-{k}", data[: m.start(group)] + v + data[m.end(group) :])
@@ -437,6 +469,9 @@ def dem_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
     out += packed("pixelscale", data, at_values[33550], "<d", {"zero": 0.0, "huge": 1e300})
     out += packed("tiepoint", data, at_values[33922] + 24, "<d", {"nan": math.nan, "huge": 1e300})
     out += packed("geokeys", data, at_values[34735] + 6, "<H", {"huge": 0xFFFF})
+    out += packed("geokeys", data, tags[34735], "<H", {"none": 34999})  # an unknown tag now
+    out += packed("photometric", data, value[262], "<H", {"ycbcr": 6})
+    out += packed("compression", data, value[259], "<H", {"deflate": 8})
     out += packed("ifd", data, 4, "<I", {"zero": 0, "huge": 0xFFFFFFF0})
     out += flips(data, rng, 3)
     out += splices(data, rng, 2)
@@ -460,7 +495,12 @@ def bt_file(folder: Path) -> tuple[Path, Path]:
 def bt_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
     end = after(data, b"\ndata")
     out = truncations(data, end, end + 1)
-    out += texts("res", data, rb"\nres (\S+)", {**NUMBERS, "tiny": b"1e-12"})
+    out += texts(
+        "res",
+        data,
+        rb"\nres (\S+)",
+        {**NUMBERS, "tiny": b"1e-12", "e20": b"1e20", "e-300": b"1e-300", "max": b"1.7e308"},
+    )
     out += texts("size", data, rb"\nsize (\S+)", {"zero": b"0", "huge": NUMBERS["huge"]})
     out += texts("id", data, rb"\nid (\S+)", {"color": b"ColorOcTree"})
     out.append(("all-inner", data[:end] + b"\xff" * (len(data) - end)))
@@ -493,6 +533,7 @@ def scan_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
         "point-huge": b"1e300 -1e300 1e300",
         "point-4": b"1 2 3 4",
         "word": b"hello world !",
+        "long-line": b"1" * 5000,
     }.items():
         out.append((name, b"\n".join([*lines[:5], line, *lines[5:]])))
     out += flips(data, rng, 2)
@@ -897,6 +938,14 @@ def test_mutated_input_exits_0_or_2(
         if (p := problems(b, o)) and o.name not in KNOWN_BUGS
     ]
     assert not bad, f"{len(bad)} of {len(cases)} cases:\n" + "\n".join(bad)
+    read = [o.describe() for b, o in cases if o.name in MUST_REFUSE and o.exit != 2]
+    assert not read, "read, but must be refused:\n" + "\n".join(read)
     fixed = [o.name for b, o in cases if o.name in KNOWN_BUGS and not problems(b, o)]
     assert not fixed, f"known bugs no longer fail, remove them from KNOWN_BUGS: {fixed}"
     assert any(o.exit == 2 for _, o in cases)  # the mutations do reach the reader
+
+
+def test_must_refuse_names_cases(outcomes: dict[str, list[tuple[Built, Outcome]]]) -> None:
+    names = {o.name for cases in outcomes.values() for _, o in cases}
+    assert not (MUST_REFUSE - names), sorted(MUST_REFUSE - names)
+    assert not (set(KNOWN_BUGS) - names), sorted(set(KNOWN_BUGS) - names)

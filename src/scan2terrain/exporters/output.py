@@ -36,73 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from scan2terrain.errors import OutputError
-
-#: Prefix of the hidden temporary names beside an output (kept short: NAME_MAX is 255 bytes).
-TMP_PREFIX = ".s2t-"
-_NAME_MAX = 255
-
-
-def real_path(path: Path) -> Path:
-    """``path`` absolute, with symbolic links and ``..`` resolved (missing parts kept as given)."""
-    return Path(os.path.realpath(Path(path)))
-
-
-def _cwd() -> Path | None:
-    try:
-        return real_path(Path.cwd())
-    except OSError:  # the working folder was removed
-        return None
-
-
-def _home() -> Path | None:
-    try:
-        return real_path(Path.home())
-    except (OSError, RuntimeError, KeyError):  # no HOME and no passwd entry
-        return None
-
-
-def _is_url(path: Path | str) -> bool:
-    return "://" in str(path)
-
-
-def check_path(target: Path, inputs: Iterable[Path | str] = (), *, what: str = "output") -> Path:
-    """Checks shared by output folders and output files; returns the resolved target.
-
-    Refuses (:class:`OutputError`, one line naming ``target``) a broken symbolic link, a
-    target that is ``/``, the home or current folder or one of their parents, one that is or
-    contains an input, a name too long for the file system, and a target whose nearest
-    existing parent is not a writable folder.
-    """
-    target = Path(target)
-    real = real_path(target)
-    if len(os.fsencode(real.name)) > _NAME_MAX:
-        raise OutputError(f"{target}: name too long (more than {_NAME_MAX} bytes)")
-    if target.is_symlink() and not target.exists():
-        raise OutputError(
-            f"{target}: is a broken symbolic link (to {target.readlink()}); "
-            f"remove it or name another {what}"
-        )
-    if real.parent == real:
-        raise OutputError(f"{target}: is the root folder; name a new {what}")
-    for name, place in (("current", _cwd()), ("home", _home())):
-        if place is not None and (real == place or real in place.parents):
-            which = "is" if real == place else "contains"
-            raise OutputError(f"{target}: {which} the {name} folder; name a new {what}")
-    for source in inputs:
-        if _is_url(source):
-            continue
-        src = real_path(Path(source))
-        if real == src or real in src.parents:
-            which = "is" if real == src else "contains"
-            raise OutputError(f"{target}: {which} the input {source}; name another {what}")
-    ancestor = real.parent
-    while not ancestor.exists() and not ancestor.is_symlink():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise OutputError(f"{target}: {ancestor} is not a folder")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise OutputError(f"{target}: cannot write in {ancestor} (permission denied)")
-    return real
+from scan2terrain.fileio import TMP_PREFIX, check_path, locked, sweep, try_lock
 
 
 class OutputDir:
@@ -287,42 +221,6 @@ def _rename(src: Path, dst: Path, flags: int) -> bool:
     return True
 
 
-def try_lock(folder: Path) -> int | None:
-    """An open descriptor holding an exclusive flock on ``folder`` (or a file); None if another
-    process holds it (or locks are not available)."""
-    try:
-        import fcntl
-    except ImportError:  # not POSIX
-        return None
-    try:
-        fd = os.open(folder, os.O_RDONLY | (os.O_DIRECTORY if folder.is_dir() else 0))
-    except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        return None
-    return fd
-
-
-@contextlib.contextmanager
-def locked(parent: Path) -> Iterator[None]:
-    """A blocking exclusive flock on ``parent`` (a folder), for the sweep and the creation of
-    a temporary folder: milliseconds."""
-    try:
-        import fcntl
-    except ImportError:
-        yield
-        return
-    fd = os.open(parent, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
-
-
 def _aside(real: Path) -> Path:
     """Where an old target waits while it is replaced without an atomic exchange."""
     digest = hashlib.sha256(os.fsencode(real.name)).hexdigest()[:16]
@@ -347,32 +245,3 @@ def _restore(real: Path) -> None:
                 aside.rename(real)
     finally:
         os.close(held)
-
-
-def sweep(parent: Path) -> None:
-    """Remove hidden temporary folders and files in ``parent`` that no live run holds. Called with
-    ``parent`` locked, so a folder another run is creating is already locked by it."""
-    try:
-        entries = list(os.scandir(parent))
-    except OSError:
-        return
-    for entry in entries:
-        name = entry.name
-        if not (name.startswith(TMP_PREFIX) and name.endswith((".part", ".old"))):
-            continue
-        is_dir = entry.is_dir(follow_symlinks=False)
-        if not (is_dir or entry.is_file(follow_symlinks=False)):
-            continue
-        path = parent / name
-        held = try_lock(path)
-        if held is None:
-            continue
-        try:
-            if name.endswith(".part") and is_dir:
-                shutil.rmtree(path, ignore_errors=True)
-            elif name.endswith(".part"):  # a single file's (fileio.atomic_write)
-                path.unlink(missing_ok=True)
-            # An aside (.old) is its target's: _restore puts it back, or the target's next
-            # successful run replaces it.
-        finally:
-            os.close(held)

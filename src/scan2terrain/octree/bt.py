@@ -36,9 +36,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.config import MAX_CELL, MIN_CELL
 from scan2terrain.errors import InputError
 from scan2terrain.fileio import atomic_write
 from scan2terrain.octree.keys import KEY_OFFSET
+from scan2terrain.readers._files import regular_file
 
 #: First line of every ``.bt`` file (``AbstractOccupancyOcTree::binaryFileHeader``).
 BINARY_HEADER = b"# Octomap OcTree binary file"
@@ -163,12 +165,15 @@ def read_bt(path: Path) -> BtTree:
     Raises
     ------
     InputError
-        Naming the file, if it is missing or unreadable, is no binary OctoMap file, holds another
-        tree type, has no positive ``res``, ends before its tree does, nests nodes deeper than 16
-        levels, or holds another number of nodes than its ``size`` says (OctoMap's ``readBinary``
-        fails on that too).
+        Naming the file, if it is missing, not a regular file (checked before it is opened: a
+        FIFO would wait for a writer, ``/dev/zero`` never end) or unreadable, is no binary
+        OctoMap file, holds another tree type, has a ``res`` outside the cell sizes the
+        configuration allows (``MIN_CELL``..``MAX_CELL`` metres), ends before its tree does,
+        nests nodes deeper than 16 levels, or holds another number of nodes than its ``size``
+        says (OctoMap's ``readBinary`` fails on that too).
     """
     path = Path(path)
+    regular_file(path, "OctoMap .bt file", missing="no such file")
     try:
         buf = path.read_bytes()
     except FileNotFoundError:
@@ -244,6 +249,14 @@ def _parse_header(path: Path, buf: bytes) -> tuple[str, int, float, int]:
             if not (math.isfinite(resolution) and resolution > 0):
                 raise InputError(
                     path, f"bad resolution 'res {text}' in the OctoMap header (must be > 0)"
+                )
+            # 1e20 m voxels built an absurd world, 1e-300 m ones crashed later: the same
+            # bounds as every cell size the configuration takes.
+            if not MIN_CELL <= resolution <= MAX_CELL:
+                raise InputError(
+                    path,
+                    f"resolution 'res {text}' in the OctoMap header is outside "
+                    f"{MIN_CELL:g}..{MAX_CELL:g} m",
                 )
     if not tree_type:
         raise InputError(path, "the OctoMap header has no 'id' (tree type)")

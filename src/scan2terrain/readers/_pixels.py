@@ -1,21 +1,35 @@
 """Opening image files safely and turning them into normalised channel arrays.
 
 Shared by the map_server reader and the arbitrary-image reader. Pillow does the decoding; this
-module
-adds a pixel limit checked before decoding (decompression bombs), one error type for every decoding
-failure, and a uniform float view of the channels whatever the image mode.
+module adds what Pillow leaves out:
+
+* only regular files are opened (a FIFO would wait for a writer);
+* a pixel limit checked before decoding (decompression bombs);
+* every chunk of a PNG checked against its CRC before Pillow reads it: Pillow checks no IDAT
+  CRC, and damaged deflate data that still inflates gave an image with most pixels wrong; a
+  PNG that ends before its IEND chunk is refused as truncated (Pillow's
+  ``LOAD_TRUNCATED_IMAGES`` stays False, so other formats cut short are refused too);
+* binary PGM/PPM samples whose maxval is not 255 (or 65535) are decoded here with numpy, and
+  samples above the maxval refused: Pillow clamps them (a map's unknown cells became free), and
+  decodes such files with a Python loop per sample;
+* one error type for every decoding failure (whatever Pillow raises on a corrupt file), and a
+  uniform float view of the channels whatever the image mode.
 """
 
 from __future__ import annotations
 
+import struct
 import warnings
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import raised_in, regular_file
 
 #: Default refusal limit: 2^28 pixels (16384 x 16384), 256 MiB as 8-bit grey.
 DEFAULT_MAX_PIXELS = 1 << 28
@@ -44,9 +58,11 @@ def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
     """Decode ``path`` into :class:`Channels`, refusing bombs, truncation and non-images."""
     from PIL import Image, UnidentifiedImageError
 
-    if not path.is_file():
-        raise InputError(path, "image file not found")
+    regular_file(path, "image file")
     try:
+        with path.open("rb") as f:
+            if f.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE:
+                _check_png(path, f)
         with warnings.catch_warnings():
             # We apply our own pixel limit below, before decoding.
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -61,6 +77,8 @@ def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
                     )
                 if w == 0 or h == 0:
                     raise InputError(path, "image is empty")
+                if img.format == "PPM" and img.tile and img.tile[0][0] == "ppm":
+                    return _scaled_pnm(path, img)
                 img.load()
                 return _channels(img, path)
     except UnidentifiedImageError:
@@ -71,6 +89,88 @@ def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
         if isinstance(exc, InputError):
             raise
         raise InputError(path, f"cannot decode image (truncated or corrupt?): {exc}") from None
+    except Exception as exc:  # whatever else Pillow's code meets in a corrupt file
+        if not raised_in(exc, ("PIL",)):
+            raise
+        text = " ".join(str(exc).split())[:200]
+        raise InputError(
+            path, f"cannot decode image (corrupt?): {type(exc).__name__}: {text}"
+        ) from None
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The longest chunk the PNG specification allows (2^31 - 1 bytes).
+_PNG_MAX_CHUNK = (1 << 31) - 1
+
+
+def _check_png(path: Path, f: BinaryIO) -> None:
+    """Every chunk of the PNG ``f`` (just past its signature) whole and matching its CRC, up to
+    IEND; read 1 MiB at a time (zlib.crc32: about a millisecond a megabyte)."""
+    truncated = "cannot decode image: truncated PNG"
+    corrupt = "cannot decode image: corrupt PNG"
+    pos = len(_PNG_SIGNATURE)
+    while True:
+        head = f.read(8)
+        if len(head) < 8:
+            raise InputError(path, f"{truncated}: it has no IEND chunk")
+        length, kind = struct.unpack(">I4s", head)
+        name = kind.decode("ascii") if kind.isalpha() else f"0x{kind.hex()}"
+        if length > _PNG_MAX_CHUNK:
+            raise InputError(path, f"{corrupt}: a chunk length of {length} at byte {pos}")
+        crc = zlib.crc32(kind)
+        left = length
+        while left:
+            data = f.read(min(left, 1 << 20))
+            if not data:
+                break
+            crc = zlib.crc32(data, crc)
+            left -= len(data)
+        stored = f.read(4)
+        if left or len(stored) < 4:
+            have = 8 + length - left + len(stored)
+            raise InputError(
+                path,
+                f"{truncated}: its {name} chunk at byte {pos} needs {length + 12} bytes, the file "
+                f"ends {have} bytes into it",
+            )
+        if struct.unpack(">I", stored)[0] != crc:
+            raise InputError(path, f"{corrupt}: its {name} chunk at byte {pos} fails its CRC check")
+        if kind == b"IEND":
+            return
+        pos += length + 12
+
+
+def _scaled_pnm(path: Path, img: Any) -> Channels:
+    """A binary PGM/PPM whose maxval is neither 255 nor (PGM) 65535, decoded with numpy: its
+    samples scaled to 255 (or 65535 when maxval > 255 in a PGM) as Pillow scales them, with
+    Python's rounding, after refusing samples above the maxval (Pillow clamps them)."""
+    offset, args = img.tile[0][2], img.tile[0][3]
+    maxval = int(args[-1])
+    bands = 3 if img.mode == "RGB" else 1
+    out_max = 65535 if img.mode == "I" else 255
+    dtype = np.dtype(">u1" if maxval < 256 else ">u2")
+    w, h = img.size
+    need = w * h * bands * dtype.itemsize
+    with path.open("rb") as f:
+        f.seek(offset)
+        raw = f.read(need)
+    if len(raw) < need:
+        raise InputError(
+            path,
+            f"truncated: {w}x{h} pixels need {need} bytes after the header, the file has "
+            f"{len(raw)}",
+        )
+    samples = np.frombuffer(raw, dtype=dtype).reshape(h, w, bands)
+    top = int(samples.max())
+    if top > maxval:
+        kind = "PGM" if bands == 1 else "PPM"
+        raise InputError(
+            path, f"samples up to {top} exceed the {kind}'s maxval {maxval} (corrupt file)"
+        )
+    # Pillow: round(value / maxval * out_max), in double precision, rounding half to even.
+    scaled = np.rint(samples / maxval * out_max)
+    colour = scaled.astype(np.uint16 if out_max == 65535 else np.uint8)
+    return Channels(colour, None, out_max)
 
 
 def _channels(img: object, path: Path) -> Channels:

@@ -12,6 +12,17 @@ definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choi
   sniffed from the first bytes, not the suffix, so errors can say what a file really is; a bag
   with the wrong suffix is opened through a temporary symlink because rosbags dispatches on
   the suffix.
+* **Only regular files are opened** (:func:`~scan2terrain.readers._files.regular_file`): a named
+  pipe given as a bag, or as the storage file of a rosbag2 folder, waited for a writer forever.
+* **Decompression is capped.** A whole-file zstd bag (standalone, or each file of a rosbag2
+  folder with ``compression_mode: FILE``, which rosbags would decompress without a limit) is
+  decompressed here, streamed, to at most :data:`MAX_ZSTD_RATIO` times its size (at least
+  :data:`MIN_ZSTD_BUDGET`): a 49 KB file inflated to 1.6 GB. A frame that states its size is
+  refused before anything is written.
+* **Temporary folders** (``.s2t-bag-*.part`` in the system's temporary folder) are held under
+  an exclusive ``flock`` while they live, and removed when the bag is closed; those of killed
+  runs, which nobody holds, are removed by the next bag read (the rule and the code of
+  :mod:`scan2terrain.exporters.output`'s output folders).
 * **Errors.** Every failure is one :class:`~scan2terrain.errors.InputError` naming the file:
   missing, not a bag, the pre-2010 ``#ROSRECORD V1.2`` format, a truncated or damaged file
   (rosbags raises many exception types, some only while iterating, so iteration is wrapped
@@ -58,7 +69,7 @@ from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from functools import lru_cache
 from io import BytesIO
-from pathlib import Path
+from pathlib import Path, PurePath
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, cast
 
@@ -73,6 +84,7 @@ from rosbags.rosbag1.reader import read_uint32 as _read_uint32
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import regular_file
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -119,6 +131,14 @@ _MAGIC_SQLITE = b"SQLite format 3\x00"
 _MAGIC_MCAP = b"\x89MCAP0\r\n"
 _MAGIC_ZSTD = b"\x28\xb5\x2f\xfd"
 _STORAGE_SUFFIX = {"sqlite3": ".db3", "mcap": ".mcap"}
+_STORAGE_NAMES = (".db3", ".mcap", ".db3.zstd", ".mcap.zstd")
+#: A zstd bag is decompressed to at most this many times its size (and at least
+#: :data:`MIN_ZSTD_BUDGET` bytes). Recordings compress 2 to 10 times; the nav2 fixture, mostly
+#: an empty costmap, 120 times. A trusted file beyond it can be decompressed with ``zstd -d``.
+MAX_ZSTD_RATIO = 200
+MIN_ZSTD_BUDGET = 64 << 20
+#: A rosbag2 ``metadata.yaml`` lists topics and files: kilobytes.
+MAX_METADATA_BYTES = 16 << 20
 _LEGACY_HINT = (
     "this is the pre-2010 '#ROSRECORD V1.2' bag format, which only ROS1's own rosbag reads; "
     "convert it in ROS1 with 'rosbag reindex old.bag' (rewrites it as V2.0, keeping "
@@ -268,30 +288,151 @@ class _Source:
     read: tuple[Path, ...]  # what rosbags opens (staged copies or symlinks where needed)
 
 
+def _temp_folder(stack: ExitStack) -> Path:
+    """A new folder in the system's temporary folder, removed when ``stack`` closes.
+
+    It holds an exclusive flock while it lives, so the next bag read can tell the folder of a
+    killed run from a live one's and remove it (:func:`scan2terrain.fileio.sweep`,
+    under a short lock on the temporary folder, as for output folders).
+    """
+    # Lazy: the output module is a later stage's, shared here as fileio shares it.
+    from scan2terrain.fileio import TMP_PREFIX, locked, sweep, try_lock
+
+    parent = Path(tempfile.gettempdir())
+    try:
+        with locked(parent):
+            sweep(parent)
+            folder = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}bag-", suffix=".part", dir=parent))
+            lock = try_lock(folder)
+    except OSError as exc:
+        raise InputError(
+            None, f"cannot make a temporary folder in {parent} ({exc.strerror or exc})"
+        ) from None
+    if lock is not None:
+        stack.callback(os.close, lock)
+    stack.callback(shutil.rmtree, folder, ignore_errors=True)  # first, then the lock goes
+    return folder
+
+
 def _stage(path: Path, kind: str, stack: ExitStack) -> Path:
     """A path rosbags will accept for a file of this kind (it dispatches on the suffix)."""
     want = ".bag" if kind == "ros1" else _STORAGE_SUFFIX[kind]
     if path.suffix == want:
         return path
-    tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scan2terrain-bag-")))
-    link = tmp / (path.stem + want)
+    link = _temp_folder(stack) / (path.stem + want)
     link.symlink_to(path.resolve())
     return link
 
 
-def _decompress(path: Path, stack: ExitStack) -> Path:
-    """Decompress a whole-file zstd bag (``.mcap.zstd``) into a temporary file."""
-    tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scan2terrain-bag-")))
-    out = tmp / "bag"
+def _too_big(limit: int, size: int) -> str:
+    return (
+        f"more than {limit:,} bytes, {MAX_ZSTD_RATIO} times its {size:,} (at least "
+        f"{MIN_ZSTD_BUDGET:,}: MAX_ZSTD_RATIO in scan2terrain.readers.bag): a zstd bomb? If the "
+        "file is trusted, decompress it with 'zstd -d' and give the result"
+    )
+
+
+def _inflate(path: Path, out: Path) -> None:
+    """Decompress the zstd file ``path`` into ``out``, streamed, refusing (before writing
+    anything, when its first frame states its size) more than the budget."""
+    size = path.stat().st_size
+    limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * size)
     try:
-        with path.open("rb") as raw, zstd.open(raw, "rb") as src, out.open("wb") as dst:
-            shutil.copyfileobj(src, dst)
+        with path.open("rb") as raw:
+            try:
+                declared = zstd.get_frame_info(raw.read(18)).decompressed_size
+            except zstd.ZstdError:  # no frame header: decompression says what is wrong
+                declared = None
+            if declared is not None and declared > limit:
+                raise InputError(
+                    path, f"its zstd frame holds {declared:,} bytes, {_too_big(limit, size)}"
+                )
+            raw.seek(0)
+            total = 0
+            with zstd.open(raw, "rb") as src, out.open("wb") as dst:
+                while chunk := src.read(1 << 20):
+                    total += len(chunk)
+                    if total > limit:
+                        raise InputError(path, f"decompresses to {_too_big(limit, size)}")
+                    dst.write(chunk)
     except (OSError, zstd.ZstdError, EOFError) as exc:
         raise InputError(path, f"cannot decompress this zstd file ({exc})") from None
+    except InputError:
+        out.unlink(missing_ok=True)  # now: the folder goes only when the bag is closed
+        raise
+
+
+def _decompress(path: Path, stack: ExitStack) -> Path:
+    """Decompress a whole-file zstd bag (``.mcap.zstd``) into a temporary file."""
+    out = _temp_folder(stack) / "bag"
+    _inflate(path, out)
     kind = _sniff(out)
     if kind not in _STORAGE_SUFFIX:
         raise InputError(path, "a zstd file that does not hold a .mcap or .db3 bag")
     return out.rename(out.with_suffix(_STORAGE_SUFFIX[kind]))
+
+
+def _metadata(folder: Path) -> dict[str, Any] | None:
+    """The ``rosbag2_bagfile_information`` of a rosbag2 folder, with ``relative_file_paths``
+    as plain names; None when it is not in order (rosbags then reads it and says what is
+    wrong)."""
+    import yaml
+
+    errors = (OSError, UnicodeError, yaml.YAMLError, RecursionError, ValueError, KeyError)
+    try:
+        doc = yaml.safe_load((folder / "metadata.yaml").read_text(encoding="utf-8"))
+        info = dict(doc["rosbag2_bagfile_information"])
+        info["relative_file_paths"] = [PurePath(str(x)).name for x in info["relative_file_paths"]]
+    except (*errors, TypeError, AttributeError):
+        return None
+    return info
+
+
+def _unpack_file_mode(folder: Path, info: dict[str, Any], stack: ExitStack) -> Path | None:
+    """For a rosbag2 folder compressed file by file (``compression_mode: FILE``, zstd): a copy
+    with its files decompressed here (capped) and a metadata.yaml that says so, for rosbags to
+    read instead of decompressing them itself without a limit; None for any other folder."""
+    import yaml
+
+    names: list[str] = info["relative_file_paths"]
+    mode = str(info.get("compression_mode") or "").lower()
+    if mode != "file" or info.get("compression_format") != "zstd" or not names:
+        return None
+    if not all((folder / name).is_file() for name in names):
+        return None  # rosbags names the missing ones
+    staged = _temp_folder(stack) / folder.name
+    staged.mkdir()
+    unpacked = [PurePath(name).stem for name in names]  # rosbags' own names for them
+    for name, out in zip(names, unpacked, strict=True):
+        _inflate(folder / name, staged / out)
+    plain = {**info, "compression_mode": "", "compression_format": ""}
+    plain["relative_file_paths"] = unpacked
+    (staged / "metadata.yaml").write_text(
+        yaml.safe_dump({"rosbag2_bagfile_information": plain}), encoding="utf-8"
+    )
+    return staged
+
+
+def _rosbag2(path: Path, stack: ExitStack) -> _Source:
+    """A rosbag2 folder: its metadata.yaml and storage files must be regular files."""
+    meta = path / "metadata.yaml"
+    if regular_file(meta, "bag") > MAX_METADATA_BYTES:
+        raise InputError(
+            meta, f"larger than {MAX_METADATA_BYTES:,} bytes: not a rosbag2 metadata file"
+        )
+    info = _metadata(path)
+    listed = set() if info is None else set(info["relative_file_paths"])
+    for entry in sorted(path.iterdir()):
+        if entry.name.endswith(_STORAGE_NAMES) or entry.name in listed:
+            regular_file(entry, "bag")
+    staged = None if info is None else _unpack_file_mode(path, info, stack)
+    if staged is not None:
+        return _Source((path,), (staged,))
+    if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
+        link = _temp_folder(stack) / path.stem
+        link.symlink_to(path.resolve(), target_is_directory=True)
+        return _Source((path,), (link,))
+    return _Source((path,), (path,))
 
 
 def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Source:
@@ -299,8 +440,8 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
     if not items:
         raise InputError(None, "no bag given")
     for p in items:
-        if not p.exists():
-            raise InputError(p, "bag not found")
+        if not p.is_dir():  # a file, or nothing: refused before it is opened unless regular
+            regular_file(p, "bag", missing="bag not found")
     if len(items) > 1:  # a split ROS1 recording
         staged = []
         for p in items:
@@ -317,20 +458,14 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
     if path.is_file() and path.name == "metadata.yaml":
         path = path.parent
     if path.is_dir():
-        if (path / "metadata.yaml").is_file():
-            if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
-                tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="scan2terrain-")))
-                link = tmp / path.stem
-                link.symlink_to(path.resolve(), target_is_directory=True)
-                return _Source((path,), (link,))
-            return _Source((path,), (path,))
+        meta = path / "metadata.yaml"
+        if meta.exists() or meta.is_symlink():
+            return _rosbag2(path, stack)
         bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
         if bags:
             return _source(bags, stack) if len(bags) > 1 else _source(bags[0], stack)
         storage = sorted(
-            p
-            for p in path.iterdir()
-            if p.is_file() and p.name.endswith((".db3", ".mcap", ".db3.zstd", ".mcap.zstd"))
+            p for p in path.iterdir() if p.is_file() and p.name.endswith(_STORAGE_NAMES)
         )
         if len(storage) == 1:
             return _Source((path,), _source(storage[0], stack).read)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import math
 import os
 import re
 import struct
@@ -48,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import regular_file
 
 TEXT_SUFFIXES = (".xyz", ".xyzn", ".xyzrgb", ".pts", ".txt", ".csv")
 LAS_SUFFIXES = (".las", ".laz")
@@ -147,11 +149,10 @@ def read_cloud(path: Path | str, *, las_classes: Collection[int] | None = None) 
             path,
             f"unknown point-cloud extension {suffix or '(none)'!r} (known: {' '.join(SUFFIXES)})",
         )
-    if not path.is_file():
-        raise InputError(path, "point-cloud file not found")
+    size = regular_file(path, "point-cloud file")
     classes = None if las_classes is None else _classes(path, suffix, las_classes)
     try:
-        if path.stat().st_size == 0:
+        if size == 0:
             raise InputError(path, "empty file")
         if suffix == ".pcd":
             raw, fmt = _read_pcd(path)
@@ -195,6 +196,11 @@ def _read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
     n = _pcd_int(path, head, "POINTS") if "POINTS" in head else width * height
     if n != width * height:
         raise InputError(path, f"PCD header: POINTS {n} is not WIDTH x HEIGHT {width}x{height}")
+    # Two fields of one name (PCL names its padding fields "_", any number of them) would make
+    # the x, y or z read an accident of which one is taken.
+    twice = next((n for i, n in enumerate(names) if n != "_" and n in names[:i]), None)
+    if twice is not None:
+        raise InputError(path, f"PCD header: field {twice!r} appears twice in FIELDS")
     missing = [a for a in _XYZ if a not in names]
     if missing:
         raise InputError(path, f"PCD has no field {', '.join(missing)} (FIELDS {' '.join(names)})")
@@ -618,6 +624,7 @@ def _check_las_layout(
     if len(head) < _LAS_HEADER_MIN or not head.startswith(b"LASF"):
         return
     header_size, start, n_vlrs, format_id, record, count = struct.unpack_from("<HIIBHI", head, 94)
+    _check_scales(head, where)
     first_evlr = n_evlrs = 0
     if head[25] >= 4 and len(head) >= _LAS14_HEADER:  # LAS 1.4: 64-bit count, EVLRs
         first_evlr, n_evlrs, count = struct.unpack_from("<QIQ", head, 235)
@@ -648,6 +655,24 @@ def _check_las_layout(
             _check_laz(
                 f, size, laszip, start=start, record=record, count=count, where=where, decode=decode
             )
+
+
+def _check_scales(head: bytes, where: Path | str) -> None:
+    """Refuse scale factors that are not positive and finite (0 put every point at the offset,
+    a negative one mirrored the cloud, both read without a word) and non-finite offsets."""
+    scales = struct.unpack_from("<3d", head, 131)
+    offsets = struct.unpack_from("<3d", head, 155)
+    if not all(math.isfinite(v) and v > 0 for v in scales):
+        raise InputError(
+            where,
+            f"corrupt LAS header: scale factors ({', '.join(f'{v:g}' for v in scales)}) must be "
+            "positive and finite",
+        )
+    if not all(math.isfinite(v) for v in offsets):
+        raise InputError(
+            where,
+            f"corrupt LAS header: offsets ({', '.join(f'{v:g}' for v in offsets)}) must be finite",
+        )
 
 
 def _check_evlrs(f: BinaryIO, size: int, first: int, n: int, where: Path | str) -> None:
@@ -891,9 +916,7 @@ def _las_source(name: Path | str) -> Iterator[Any]:
     protocol fsspec has: http(s) with aiohttp, s3 with s3fs, ...)."""
     if not is_url(name):
         path = Path(name)
-        if not path.is_file():
-            raise InputError(path, "point-cloud file not found")
-        if path.stat().st_size == 0:
+        if regular_file(path, "point-cloud file") == 0:
             raise InputError(path, "empty file")
         yield path
         return

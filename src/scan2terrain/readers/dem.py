@@ -10,6 +10,12 @@ A pure-Python reader (``tifffile``; no GDAL). What is read, as GDAL reads it:
   from ``ProjLinearUnitsGeoKey``: metre, foot, US survey foot, kilometre), 2 = geographic (angular
   units from ``GeogAngularUnitsGeoKey``, degrees by default). Heights are metres unless
   ``VerticalUnitsGeoKey`` says feet; GDAL's per-band scale and offset (``GDAL_METADATA``) apply.
+  A pixel scale without GeoKeys that say projected or geographic is an incomplete georeference
+  (metres or degrees? degree pixels read as metres made a terrain 3.6 cm wide): like a TIFF
+  without georeference, it is read only with a pixel size given in metres (``--resolution``).
+* Before decoding, only a regular file is opened, and its strips or tiles must lie inside it;
+  whatever tifffile or imagecodecs raise on a corrupt file (``zlib.error``, a ``TypeError`` from
+  a tag of another type, ``NotImplementedError``) is an :class:`InputError`.
 * ``GDAL_NODATA`` (42113, ASCII) and non-finite samples are nodata: they take the lowest valid
   height (what gz-common's ``Dem::FillHeightMap`` does with them). A DEM of nothing but nodata is
   refused. Negative heights are kept (bathymetry, the Moon).
@@ -49,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import raised_in, regular_file
 from scan2terrain.types import HeightGrid, Pose2D
 
 #: gz-math's Earth radius for ``SphericalCoordinates::Distance`` (metres).
@@ -101,6 +108,15 @@ CrsKind = Literal["projected", "geographic", "local"]
 
 #: Pixel sizes closer than this (relative) count as square: no resampling.
 SQUARE_TOLERANCE = 1e-6
+#: Made square at the default resolution, a DEM may have at most this many times its own
+#: pixels. Geographic pixels are 1 / cos(latitude) times taller than wide, and the 2^n+1 image
+#: rounds up: a 1-degree tile at 80 degrees north takes about 14 times its pixels, at 86 degrees
+#: up to 52. A tie point moved to 89.99 degrees made 8,097 times (a 129 x 129 DEM resampled to
+#: 257 x 524,289, a grid 2 cm wide and 4 km long).
+MAX_UPSAMPLE = 64
+#: Output cells resampled at a time (:meth:`Dem.to_height_grid`), so that the float64
+#: interpolation's temporaries stay small whatever the grid's size.
+_RESAMPLE_BLOCK = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -236,8 +252,14 @@ class Dem:
         # Lattice positions in DEM sample-index units (sample k has its centre at k).
         tx = (np.arange(nx, dtype=np.float64) - (nx - 1) / 2) * (r / px) + (cols - 1) / 2
         ty = (np.arange(ny, dtype=np.float64) - (ny - 1) / 2) * (r / py) + (rows - 1) / 2
-        fine = _linear(_linear(self.heights, tx, axis=1), ty, axis=0)
-        heights = np.clip(fine, self.z_min, self.z_max).astype(np.float32)
+        across = _linear(self.heights, tx, axis=1)
+        # Row blocks: the float64 temporaries of the interpolation (five arrays) would be 40
+        # bytes a cell of the whole grid at once, for a float32 result of 4.
+        heights = np.empty((ny, nx), dtype=np.float32)
+        step = max(1, _RESAMPLE_BLOCK // nx)
+        for a in range(0, ny, step):  # a few blocks of rows, not a loop over cells
+            block = _linear(across, ty[a : a + step], axis=0)
+            heights[a : a + step] = np.clip(block, self.z_min, self.z_max, out=block)
         ix = np.clip(np.rint(tx), 0, cols - 1).astype(np.intp)
         iy = np.clip(np.rint(ty), 0, rows - 1).astype(np.intp)
         known = self.valid[np.ix_(iy, ix)]
@@ -312,8 +334,7 @@ def read_dem(
     import tifffile
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "DEM file not found")
+    size = regular_file(path, "DEM file")
     log = _TiffLog()
     tifffile_logger = logging.getLogger("tifffile")
     tifffile_logger.addFilter(log)
@@ -322,13 +343,22 @@ def read_dem(
             if not tif.pages:
                 raise InputError(path, "TIFF holds no image")
             page = tif.pages[0]
-            raw, tags = _decode(path, page, path.stat().st_size, max_pixels)
+            raw, tags = _decode(path, page, size, max_pixels)
     except tifffile.TiffFileError as exc:
-        raise InputError(path, f"not a readable TIFF file ({exc})") from None
+        raise InputError(path, f"not a readable TIFF file ({_one_line(exc)})") from None
     except (OSError, ValueError, EOFError, struct.error) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(path, f"cannot decode the TIFF (truncated or corrupt?): {exc}") from None
+        raise InputError(
+            path, f"cannot decode the TIFF (truncated or corrupt?): {_one_line(exc)}"
+        ) from None
+    except Exception as exc:
+        # tifffile and its codecs meet a corrupt file with whatever their code hits (zlib.error,
+        # TypeError from a tag of another type, NotImplementedError): a refusal. An exception
+        # raised by our own code is a bug, and stays one.
+        if not raised_in(exc, ("tifffile", "imagecodecs")):
+            raise
+        raise InputError(path, f"cannot decode the TIFF (corrupt?): {_described(exc)}") from None
     finally:
         tifffile_logger.removeFilter(log)
     dem = _to_dem(path, raw, tags, pixel_size)
@@ -341,30 +371,62 @@ def read_dem(
 
 def _check_resampled_size(path: Path, dem: Dem, max_pixels: int) -> None:
     """Refuse a DEM whose pixels, made square at its default resolution, would be more than
-    ``max_pixels``: non-square pixels of very different sides (a corrupt pixel scale of 1e300
-    made a 1e303-pixel grid) are the file's fault, so the file is named."""
+    ``max_pixels``, or more than :data:`MAX_UPSAMPLE` times its own: non-square pixels of very
+    different sides (a corrupt pixel scale of 1e300 made a 1e303-pixel grid, a tie point moved
+    to a pole 8,097 times the DEM's pixels) are the file's fault, so the file is named. Checked
+    before anything of that size is allocated."""
     px, py = dem.pixel_size
     w, h = dem.extent
     if not all(math.isfinite(v) and v > 0 for v in (px, py, w, h)):
         raise InputError(path, f"pixel size {px} x {py} m is not a finite number of metres")
+    rows, cols = dem.shape
+    limit = min(max_pixels, MAX_UPSAMPLE * rows * cols)
     finer = min(px, py)
     # The default resolution lies between half the finer pixel side and that side: counts at
     # half of it bound the grid from above without rounding huge numbers up to integers.
-    if (2 * w / finer + 2) * (2 * h / finer + 2) <= max_pixels:
+    if (2 * w / finer + 2) * (2 * h / finer + 2) <= limit:
         return
-    rows, cols = dem.shape
     if w / finer * (h / finer) > 1e15:  # refused whatever the rounding
         r, nx, ny = finer, w / finer, h / finer
     else:
         r = dem.default_resolution()
         nx, ny = _samples(cols, px, r), _samples(rows, py, r)
+    if nx * ny <= limit:
+        return
+    made = (
+        f"its {px:.3g} x {py:.3g} m pixels, made square ({r:.3g} m), would be {_count(nx)} x "
+        f"{_count(ny)} pixels"
+    )
     if nx * ny > max_pixels:
         raise InputError(
             path,
-            f"its {px:.3g} x {py:.3g} m pixels, resampled onto square {r:.3g} m ones, would make "
-            f"{nx:.3g} x {ny:.3g} pixels, over the limit of {max_pixels} (a corrupt pixel "
-            "scale?)",
+            f"{made}, over the limit of {max_pixels} pixels (--max-pixels; a corrupt pixel "
+            "scale?): give a coarser --resolution, or raise --max-pixels if the file is trusted",
         )
+    raise InputError(
+        path,
+        f"{made}, {_count(nx * ny / (rows * cols))} times its own {cols} x {rows}, more than "
+        f"{MAX_UPSAMPLE} (a corrupt georeference, or a DEM at a pole?): choose the pixel size "
+        f"with --resolution (its pixels' longer side is {max(px, py):.3g} m)",
+    )
+
+
+def _count(v: float) -> str:
+    """A pixel count for a message: with thousands separators, or in powers of ten when huge."""
+    return f"{round(v):,}" if v < 1e15 else f"{v:.3g}"
+
+
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _described(exc: BaseException) -> str:
+    """``module.Type: message`` on one line (``zlib.error: Error -3 ...``)."""
+    kind = type(exc)
+    name = kind.__name__ if kind.__module__ == "builtins" else f"{kind.__module__}.{kind.__name__}"
+    text = _one_line(exc)
+    return f"{name}: {text}" if text else name
 
 
 class _TiffLog(logging.Filter):
@@ -388,18 +450,29 @@ def _decode(
     """Check the page is one band of numbers, inside the file, then decode it."""
     import tifffile
 
-    photometric = int(page.photometric)
-    spp = int(page.samplesperpixel)
+    try:  # a flipped type or count byte in the IFD gives tuples or text where numbers belong
+        photometric = int(page.photometric)
+        spp = int(page.samplesperpixel)
+        bits = int(page.bitspersample)
+        shape = tuple(int(s) for s in page.shape)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(
+            path, f"corrupt TIFF directory: a tag holds values of the wrong type ({exc})"
+        ) from None
     if photometric == tifffile.PHOTOMETRIC.PALETTE:
         raise InputError(path, "a palette (colour-mapped) image, not a DEM: a DEM has one band")
     if spp != 1:
         kind = "RGB" if photometric == tifffile.PHOTOMETRIC.RGB else "bands"
         raise InputError(path, f"{spp} samples per pixel ({kind}): a DEM has one band of heights")
+    if photometric not in (tifffile.PHOTOMETRIC.MINISBLACK, tifffile.PHOTOMETRIC.MINISWHITE):
+        name = next((p.name for p in tifffile.PHOTOMETRIC if p.value == photometric), photometric)
+        raise InputError(
+            path, f"photometric interpretation {name} is not a band of heights (a colour image?)"
+        )
     if page.dtype is None or np.dtype(page.dtype).kind not in "iuf":
         raise InputError(path, f"samples of type {page.dtype} are not heights")
-    if int(page.bitspersample) == 1:
+    if bits == 1:
         raise InputError(path, "a 1-bit (black and white) image, not a DEM")
-    shape = tuple(int(s) for s in page.shape)
     if len(shape) != 2 or min(shape) < 1:
         raise InputError(path, f"raster of shape {shape} is not a 2D grid")
     rows, cols = shape
@@ -409,7 +482,12 @@ def _decode(
             f"raster has {cols}x{rows} = {rows * cols} pixels, over the limit of {max_pixels} "
             "(raise it with --max-pixels if the file is trusted)",
         )
-    ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts, strict=False)]
+    try:
+        ends = [
+            int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts, strict=False)
+        ]
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(path, f"corrupt TIFF directory: strip or tile offsets ({exc})") from None
     if not ends:
         raise InputError(path, "no pixel data: its strip or tile offsets are missing or corrupt")
     if max(ends) > file_size:
@@ -456,8 +534,15 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
         notes.append(f"heights converted from {name} to metres")
     data = (data * scale + offset) * v_factor
 
-    gt = _geotransform(path, tags, keys)
+    incomplete = _incomplete(tags, keys)
+    gt = None if incomplete else _geotransform(path, tags, keys)
     if gt is None:
+        if pixel_size is None and incomplete:
+            raise InputError(
+                path,
+                f"its georeference is incomplete ({incomplete}: metres or degrees?), so its pixel "
+                "size is unknown: give it in metres with --resolution",
+            )
         if pixel_size is None:
             raise InputError(
                 path,
@@ -468,10 +553,11 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
             raise InputError(path, f"pixel size must be > 0 metres, got {pixel_size}")
         rows, cols = data.shape
         gt = (0.0, float(pixel_size), 0.0, rows * float(pixel_size), 0.0, -float(pixel_size))
-        notes.append(f"no georeference: {pixel_size:g} m pixels, centred on the world origin")
+        what = f"incomplete georeference ({incomplete})" if incomplete else "no georeference"
+        notes.append(f"{what}: {pixel_size:g} m pixels, centred on the world origin")
         crs: CrsKind = "local"
     else:
-        crs = _crs_kind(keys, notes)
+        crs = "geographic" if keys[KEY_MODEL_TYPE] == MODEL_GEOGRAPHIC else "projected"
 
     # To grid order: x grows with the column, y with the row (row 0 = south).
     x0, dx, _, y0, _, dy = gt
@@ -531,15 +617,51 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
     )
 
 
+def _incomplete(tags: dict[int, Any], keys: dict[int, int | float | str]) -> str | None:
+    """Why the georeference cannot say what a pixel measures, or None: complete, or absent
+    (a TIFF without any georeference tag). Degrees read as metres made a terrain 3.6 cm wide,
+    so a pixel scale counts only with GeoKeys that say projected or geographic."""
+    scale, ties = TAG_PIXEL_SCALE in tags, TAG_TIEPOINT in tags
+    matrix = TAG_TRANSFORMATION in tags
+    if not (scale or ties or matrix):
+        return None
+    if not matrix and scale != ties:
+        return "only one of the ModelPixelScale and ModelTiepoint tags"
+    what = "ModelTransformation" if matrix else "ModelPixelScale and ModelTiepoint"
+    if TAG_GEOKEYS not in tags:
+        return f"{what} but no GeoKeyDirectory"
+    if keys.get(KEY_MODEL_TYPE) not in (MODEL_PROJECTED, MODEL_GEOGRAPHIC):
+        return "GeoKeys without a projected or geographic model type"
+    return None
+
+
+def _numbers(path: Path, tags: dict[int, Any], code: int, name: str) -> NDArray[np.float64]:
+    """A tag's values as float64 (1-D), refusing text or other types where numbers belong (a
+    corrupt TIFF directory: its type byte flipped)."""
+    value = tags.get(code, ())
+    try:
+        arr = np.atleast_1d(np.asarray(value))
+        if arr.dtype.kind not in "iuf":
+            raise TypeError
+        return arr.astype(np.float64).ravel()
+    except (TypeError, ValueError):
+        raise InputError(
+            path, f"{name} holds {type(value).__name__} values, not numbers (corrupt TIFF tag?)"
+        ) from None
+
+
 def _geokeys(path: Path, tags: dict[int, Any]) -> dict[int, int | float | str]:
     """GeoKeyDirectoryTag -> {key id: value} (values from the SHORT, DOUBLE or ASCII tags)."""
     directory = tags.get(TAG_GEOKEYS)
     if directory is None:
         return {}
-    d = [int(v) for v in np.atleast_1d(np.asarray(directory)).ravel()]
+    values = _numbers(path, tags, TAG_GEOKEYS, "GeoKeyDirectory")
+    if not (np.all(values == np.floor(values)) and np.all(np.abs(values) < 1 << 32)):
+        raise InputError(path, "GeoKeyDirectory holds values that are not integers")
+    d = [int(v) for v in values]
     if len(d) < 4 or len(d) < 4 + 4 * d[3]:
         raise InputError(path, "GeoKeyDirectoryTag is shorter than its key count says")
-    doubles = np.atleast_1d(np.asarray(tags.get(TAG_GEO_DOUBLES, ()), dtype=np.float64))
+    doubles = _numbers(path, tags, TAG_GEO_DOUBLES, "GeoDoubleParams")
     ascii_params = tags.get(TAG_GEO_ASCII, "")
     if isinstance(ascii_params, bytes):
         ascii_params = ascii_params.decode("latin-1")
@@ -602,13 +724,13 @@ def _geotransform(
     scale = tags.get(TAG_PIXEL_SCALE)
     ties = tags.get(TAG_TIEPOINT)
     if matrix is not None:
-        m = np.asarray(matrix, dtype=np.float64).ravel()
+        m = _numbers(path, tags, TAG_TRANSFORMATION, "ModelTransformation")
         if m.size != 16:
             raise InputError(path, f"ModelTransformationTag has {m.size} values, not 16")
         gt = (m[3], m[0], m[1], m[7], m[4], m[5])
     elif scale is not None and ties is not None:
-        s = np.asarray(scale, dtype=np.float64).ravel()
-        t = np.asarray(ties, dtype=np.float64).ravel()
+        s = _numbers(path, tags, TAG_PIXEL_SCALE, "ModelPixelScale")
+        t = _numbers(path, tags, TAG_TIEPOINT, "ModelTiepoint")
         if s.size < 2 or t.size < 6:
             raise InputError(path, "ModelPixelScale/ModelTiepoint tags are too short")
         if t.size > 6:
@@ -639,15 +761,6 @@ def _geotransform(
         x0 -= dx / 2
         y0 -= dy / 2
     return (x0, dx, rx, y0, ry, dy)
-
-
-def _crs_kind(keys: dict[int, int | float | str], notes: list[str]) -> CrsKind:
-    model = keys.get(KEY_MODEL_TYPE)
-    if model == MODEL_GEOGRAPHIC:
-        return "geographic"
-    if model != MODEL_PROJECTED:
-        notes.append("no CRS model type in the GeoKeys: read as projected, in metres")
-    return "projected"
 
 
 def _linear_unit(

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, Channels, open_pixels
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
 
@@ -36,6 +37,8 @@ MAX_REACH_CELLS = 2.0**34
 #: ... and at most this many metres (a million km: beyond any coordinate on a planet; meshes are
 #: float32, and 1e300 m cells overflowed the outlines).
 MAX_REACH_M = 1e9
+#: A map YAML is a few hundred bytes; a larger file is not read.
+MAX_YAML_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -94,8 +97,11 @@ def read_map_metadata(path: Path) -> MapMetadata:
     import yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "map YAML file not found")
+    size = regular_file(path, "map YAML file")
+    if size > MAX_YAML_BYTES:
+        raise InputError(
+            path, f"larger than {MAX_YAML_BYTES:,} bytes: not a map_server YAML ({size:,} bytes)"
+        )
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
@@ -106,15 +112,26 @@ def read_map_metadata(path: Path) -> MapMetadata:
         raise InputError(path, f"malformed YAML{where}") from None
     except UnicodeDecodeError:
         raise InputError(path, "not a text file (expected a map_server YAML)") from None
+    except RecursionError:
+        raise InputError(path, "malformed YAML (nested too deeply)") from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise InputError(path, f"malformed YAML ({_short(exc)})") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read the map YAML ({exc.strerror or exc})") from None
     if not isinstance(doc, dict):
         raise InputError(path, "expected a map_server YAML mapping with image, resolution, origin")
 
     image_field = _required(doc, "image", path)
     if not isinstance(image_field, str) or not image_field.strip():
         raise InputError(path, "'image' must be a file name")
+    if "\0" in image_field:
+        raise InputError(path, "'image' holds a NUL byte")
     image = Path(image_field).expanduser()
     if not image.is_absolute():
-        image = (path.resolve().parent / image).resolve()
+        try:
+            image = (path.resolve().parent / image).resolve()
+        except (OSError, RuntimeError):  # a link loop, a name too long: named when opened
+            image = Path.cwd() / path.parent / image
 
     resolution = _number(doc, "resolution", path)
     if not resolution > 0:
@@ -127,6 +144,8 @@ def read_map_metadata(path: Path) -> MapMetadata:
         ox, oy, *rest = (float(v) for v in origin_field)
     except (TypeError, ValueError):
         raise InputError(path, "'origin' must hold numbers [x, y, yaw]") from None
+    except OverflowError:  # an integer beyond any float
+        raise InputError(path, "'origin' must hold finite numbers") from None
     yaw = rest[0] if rest else 0.0
     if not all(math.isfinite(v) for v in (ox, oy, yaw)):
         raise InputError(path, "'origin' must hold finite numbers")
@@ -135,7 +154,7 @@ def read_map_metadata(path: Path) -> MapMetadata:
     if isinstance(negate_field, bool) or negate_field in (0, 1):
         negate = bool(negate_field)
     else:
-        raise InputError(path, f"'negate' must be 0, 1, true or false, got {negate_field!r}")
+        raise InputError(path, f"'negate' must be 0, 1, true or false, got {_short(negate_field)}")
 
     occ = _number(doc, "occupied_thresh", path)
     free = _number(doc, "free_thresh", path)
@@ -149,7 +168,9 @@ def read_map_metadata(path: Path) -> MapMetadata:
     mode_field = doc.get("mode", "trinary")
     mode = str(mode_field).strip().lower()
     if mode not in MODES:
-        raise InputError(path, f"'mode' must be one of {', '.join(MODES)}, got {mode_field!r}")
+        raise InputError(
+            path, f"'mode' must be one of {', '.join(MODES)}, got {_short(mode_field)}"
+        )
 
     return MapMetadata(path, image, resolution, Pose2D(ox, oy, yaw), negate, occ, free, mode)
 
@@ -194,7 +215,17 @@ def _number(doc: dict[str, Any], key: str, path: Path) -> float:
         with contextlib.suppress(ValueError):
             value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(path, f"'{key}' must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise InputError(path, f"'{key}' must be finite, got {value}")
-    return float(value)
+        raise InputError(path, f"'{key}' must be a number, got {_short(value)}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        raise InputError(path, f"'{key}' must be a finite number, got {_short(value)}") from None
+    if not math.isfinite(number):
+        raise InputError(path, f"'{key}' must be finite, got {number}")
+    return number
+
+
+def _short(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for one-line messages."""
+    text = repr(value) if not isinstance(value, BaseException) else str(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

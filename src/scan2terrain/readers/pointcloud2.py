@@ -57,9 +57,9 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
     Raises
     ------
     InputError
-        Without x, y or z fields; a field with an unknown datatype, a count other than 1, or not
-        fitting in ``point_step``; ``row_step`` shorter than a row; ``data`` shorter than the
-        declared points.
+        Without x, y or z fields; two fields of one name; a field with an unknown datatype, a
+        count other than 1, or not fitting in ``point_step``; ``row_step`` shorter than a row;
+        ``data`` shorter than the declared points.
     """
     if int(msg.height) * int(msg.width) == 0:
         return np.zeros((0, 3))
@@ -159,11 +159,15 @@ def _dtype(msg: Any, names: Sequence[str], point_step: int) -> np.dtype[np.void]
     """A structured dtype of ``point_step`` bytes holding the named fields at their offsets."""
     fields = list(msg.fields)
     found: dict[str, Any] = {}
+    seen: set[str] = set()
     for field in fields:  # a handful of fields, not points
         name = str(field.name)
+        # Two fields of one name: which one is x (or intensity) would be an accident. PCL's
+        # padding fields are all named "_".
+        if name in seen and name != "_":
+            raise InputError(None, f"PointCloud2 has two fields named {name!r}")
+        seen.add(name)
         if name in names:
-            if name in found:
-                raise InputError(None, f"PointCloud2 has two fields named {name!r}")
             found[name] = field
     missing = [n for n in names if n not in found]
     if missing:

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._files import regular_file
 from scan2terrain.types import Transform
 
 __all__ = [
@@ -90,6 +91,8 @@ Lookup = tuple[Bools, Floats, Floats]
 # Seconds a TUM time may hold and still fit int64 nanoseconds (+-292 years around 1970).
 _MAX_ABS_SECONDS = 9.2e9
 _TUM_COLUMNS = "t x y z qx qy qz qw"
+#: The largest TUM file read (it is read whole): 4 million poses of 64 bytes, 11 hours at 100 Hz.
+MAX_TUM_BYTES = 1 << 28
 
 
 def normalise_frame(name: str) -> str:
@@ -999,11 +1002,19 @@ def read_tum(
     Raises
     ------
     InputError
-        Naming the file and, where it applies, the line: missing or unreadable file, a line
+        Naming the file and, where it applies, the line: missing, not a regular file (a FIFO
+        would wait for a writer), larger than :data:`MAX_TUM_BYTES` or unreadable, a line
         without 8 columns, a value that is not a finite number, a zero quaternion, a time out of
         range, or fewer than two distinct times.
     """
     path = Path(path)
+    size = regular_file(path, "TUM trajectory file", missing="no such file")
+    if size > MAX_TUM_BYTES:
+        raise InputError(
+            path,
+            f"a TUM trajectory of {size:,} bytes, more than the {MAX_TUM_BYTES:,} read (the limit "
+            "MAX_TUM_BYTES of scan2terrain.readers.poses): thin it out",
+        )
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
