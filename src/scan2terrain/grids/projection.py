@@ -139,7 +139,8 @@ def _columns(
     runs: NDArray[Any] | None = None,
 ) -> _Columns:
     keys16, occ = _check_voxels(keys, occupied)
-    top = keys16[:, 2]
+    kz = keys16[:, 2]
+    top = kz  # the same object when there are no runs (the fast paths test `is`)
     if runs is not None:
         runs = np.asarray(runs)
         if runs.shape != (len(keys16),) or (len(runs) and int(runs.min()) < 1):
@@ -169,7 +170,7 @@ def _columns(
     if inside is not None:
         ky[~inside] = 0  # any valid cell: callers never let these voxels count
     origin = Pose2D((kx0 - KEY_OFFSET) * res, (ky0 - KEY_OFFSET) * res, 0.0)
-    return _Columns(ky, inside, keys16[:, 2], top, occ, (height, width), origin)
+    return _Columns(ky, inside, kz, top, occ, (height, width), origin)
 
 
 def _key_centres(res: float) -> NDArray[np.float64]:
@@ -189,8 +190,12 @@ def _band_keys(res: float, z_min: float, z_max: float) -> tuple[int, int]:
 
 def _select(cols: _Columns, res: float, z_min: float, z_max: float) -> NDArray[np.bool_]:
     """Voxels (runs) inside the grid with a voxel centre z in [z_min, z_max]."""
-    lo, hi = _band_keys(res, z_min, z_max)
-    sel: NDArray[np.bool_] = (cols.kz <= hi) & (cols.top >= lo)
+    if cols.top is cols.kz:  # single voxels: one exact table look-up on the 16-bit key
+        centres = _key_centres(res)
+        sel: NDArray[np.bool_] = ((centres >= z_min) & (centres <= z_max))[cols.kz]
+    else:
+        lo, hi = _band_keys(res, z_min, z_max)
+        sel = (cols.kz <= hi) & (cols.top >= lo)
     if cols.inside is not None:
         sel &= cols.inside
     return sel
@@ -349,23 +354,29 @@ def column_stats(
     sel = _select(cols, res, z_min, z_max)
     sel &= cols.occupied
     flat = cols.flat[sel]
-    lo_band, hi_band = _band_keys(res, z_min, z_max)
-    # Each run clipped to the band: keys lo..hi, all inside it.
-    lo = np.maximum(cols.kz[sel], lo_band).astype(np.int64)
-    hi = np.minimum(cols.top[sel], hi_band).astype(np.int64)
-    length = hi - lo + 1
     h, w = cols.shape
     n = h * w
-    count = np.bincount(flat, weights=length, minlength=n).astype(np.int64)
-    known = count > 0
     # Work on the integer keys: the centre is monotonic in the key, so the extreme centre is the
-    # centre of the extreme key, and the sums stay exact (a run's key sum is (lo + hi) * length
-    # / 2, an integer; 65535 * 2**37 < 2**53).
+    # centre of the extreme key, and the sums stay exact (65535 * 2**37 < 2**53).
+    if runs is None:  # single voxels (the octree's): no clipping, the fast path
+        lo16 = hi16 = cols.kz[sel]
+        count = np.bincount(flat, minlength=n)
+        ksum = np.bincount(flat, weights=lo16, minlength=n)
+    else:
+        # Each run clipped to the band: keys lo..hi, all inside it; a run's key sum is
+        # (lo + hi) * length / 2, an integer.
+        lo_band, hi_band = _band_keys(res, z_min, z_max)
+        lo = np.maximum(cols.kz[sel], lo_band).astype(np.int64)
+        hi = np.minimum(cols.top[sel], hi_band).astype(np.int64)
+        length = hi - lo + 1
+        count = np.bincount(flat, weights=length, minlength=n).astype(np.int64)
+        ksum = np.bincount(flat, weights=(lo + hi) * length // 2, minlength=n)
+        lo16, hi16 = lo.astype(np.uint16), hi.astype(np.uint16)
+    known = count > 0
     kmax = np.zeros(n, dtype=np.uint16)
     kmin = np.full(n, _KEY_MAX, dtype=np.uint16)
-    np.maximum.at(kmax, flat, hi.astype(np.uint16))
-    np.minimum.at(kmin, flat, lo.astype(np.uint16))
-    ksum = np.bincount(flat, weights=(lo + hi) * length // 2, minlength=n)
+    np.maximum.at(kmax, flat, hi16)
+    np.minimum.at(kmin, flat, lo16)
     centres = _key_centres(res)
 
     def grid(values: NDArray[np.float64]) -> NDArray[np.float32]:
