@@ -455,7 +455,8 @@ def _bag_commands(sub: Any) -> None:
         epilog="examples:\n"
         "  scan2terrain bag2world fixtures/bags/bag1_fuse_tb3_sim_scan_odom -o tb3_world\n"
         "  scan2terrain bag2world fixtures/bags/bag1_embark_luminar_pointcloud -o road "
-        "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0 --insert endpoints --grid height\n"
+        "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0 --insert endpoints --grid height "
+        "--resolution 0.2\n"
         "  scan2terrain bag2world fixtures/bags/bag1_leg_tracker_room_scan -o room "
         "--pose 0 0 0.3 0 0 0 --resolution 0.05\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
