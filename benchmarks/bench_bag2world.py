@@ -17,7 +17,7 @@ Measured, and printed as tables:
 
 1. Throughput on 1,000 clouds (20 M points), per format: rosbags alone (``AnyReader``,
    ``messages()`` of every connection, ``deserialize`` of each message, nothing else) beside
-   ``ingest.bag2world`` with ``scans.insert = endpoints`` and ``octree.resolution = 0.1``, the
+   ``scans.bag2world`` with ``scans.insert = endpoints`` and ``octree.resolution = 0.1``, the
    library call of ``scan2terrain bag2world BAG -o OUT --insert endpoints --resolution 0.1``
    (read, pose, transform, insert, project, export; the output folder overwritten each run),
    in this process after a warm-up; again with one numba thread; and the CLI itself once in a
@@ -395,9 +395,9 @@ def config() -> Any:
 
 
 def bag2world(bag: Path, out: Path) -> Any:
-    from scan2terrain import ingest
+    from scan2terrain.commands import scans
 
-    return ingest.bag2world([bag], out, config(), overwrite=True)
+    return scans.bag2world([bag], out, config(), overwrite=True)
 
 
 def warm_up(tmp: Path) -> float:
@@ -439,12 +439,12 @@ STAGES = (
 
 @contextlib.contextmanager
 def stage_clock(acc: dict[str, float]) -> Iterator[None]:
-    """Accumulate seconds per stage of ingest.bag2world into ``acc`` by wrapping the functions
+    """Accumulate seconds per stage of scans.bag2world into ``acc`` by wrapping the functions
     it calls (looked up at call time on their modules or classes, so wrapping them times them).
     Generators are timed per next(); nested stages are subtracted when printing."""
     from rosbags.highlevel import AnyReader
 
-    from scan2terrain import ingest
+    from scan2terrain.commands import scans as scan_commands
     from scan2terrain.octree import bt
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers import bag as bagmod
@@ -503,10 +503,10 @@ def stage_clock(acc: dict[str, float]) -> Iterator[None]:
         (scans, "pointcloud2_xyz", lambda f: call(f, "decode")),
         (scans, "posed_scans", lambda f: gen(f, lambda: "posed")),
         (VoxelOctree, "insert_endpoints", lambda f: call(f, "insert")),
-        (ingest, "bag_octree", bag_octree),
+        (scan_commands, "bag_octree", bag_octree),
         (VoxelOctree, "occupied_and_free", lambda f: call(f, "voxels")),
         (bt, "bt_bytes", lambda f: call(f, "voxels")),
-        (ingest, "voxels_world", lambda f: call(f, "export")),
+        (scan_commands, "voxels_world", lambda f: call(f, "export")),
     ]
     saved = []
     for owner, name, wrap in patches:
@@ -725,7 +725,7 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
     )
     print("   rosbags alone: AnyReader(bag), messages() of every connection (+ deserialize each)")
     print(
-        "   bag2world: ingest.bag2world with scans.insert=endpoints, octree.resolution 0.1 "
+        "   bag2world: scans.bag2world with scans.insert=endpoints, octree.resolution 0.1 "
         "(= the CLI's --insert endpoints --resolution 0.1), output overwritten each run"
     )
     print(

@@ -49,7 +49,7 @@ RUNNER = textwrap.dedent(
     t0 = time.perf_counter()
     extra = {}
     if mode in ("stream", "dask-2"):
-        from scan2terrain import stream
+        from scan2terrain.commands import stream
         from scan2terrain.config import load_config
         over = {"octree.resolution": res, "octree.grid": "height", "stream.enabled": True}
         cfg = load_config(None, over)
@@ -110,7 +110,8 @@ RUNNER = textwrap.dedent(
         maxz = np.where(known, mx, np.nan).reshape(h, w)[box]
         count = cnt.reshape(h, w)[box].astype(np.int32)
     else:
-        from scan2terrain.ingest import new_tree, read_clouds
+        from scan2terrain.commands.scans import read_clouds
+from scan2terrain.steps import new_tree
         from scan2terrain.config import load_config
         from scan2terrain.grids.projection import column_stats
         cfg = load_config(None, {"octree.resolution": res})

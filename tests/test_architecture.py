@@ -10,7 +10,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
 STAGES = ["readers", "octree", "grids", "filters", "geometry", "exporters"]
-COMPOSERS = {"pipeline", "ingest", "stream", "cli", "steps", "world"}
+COMPOSERS = {"commands", "cli", "steps", "world"}
 
 
 def module_name(path: Path) -> str:

@@ -22,8 +22,8 @@ import pytest
 from numpy.typing import NDArray
 from PIL import Image
 
-from scan2terrain import ingest
 from scan2terrain.cli import main
+from scan2terrain.commands import scans
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.bag import BagWarning, open_bag
@@ -526,13 +526,13 @@ def test_carmen_log_octree_equals_octomap(tmp_path: Path) -> None:
     with open_bag(bag) as b:
         plan = plan_bag(b, cfg.scans)
         assert plan.poses == "tf" and plan.fixed_frame == "odom"
-        tree, report = ingest.bag_octree(b, cfg, plan)
+        tree, report = scans.bag_octree(b, cfg, plan)
     assert report.scans == len(log)
 
     cutoff = RANGE_MAX * (1 + RANGE_SLACK)
     beams = np.arange(log.ranges.shape[1])
     angles = float(np.float32(log.angle_min)) + float(np.float32(log.angle_increment)) * beams
-    scans = []
+    logged = []
     for k in range(len(log)):
         r = log.ranges[k].astype(np.float64)
         usable = r >= RANGE_MIN
@@ -540,9 +540,9 @@ def test_carmen_log_octree_equals_octomap(tmp_path: Path) -> None:
         x, y, theta = log.laser_poses[k]
         a = theta + angles[usable]
         pts = np.column_stack([x + dist * np.cos(a), y + dist * np.sin(a), np.full(dist.size, 0.3)])
-        scans.append((pts, np.array([x, y, 0.3])))
+        logged.append((pts, np.array([x, y, 0.3])))
     assert sum(int((log.ranges[k] >= RANGE_MAX).sum()) for k in range(len(log))) > 100
-    reference = octomap_tree(octomap, res, scans, max_range=cutoff)
+    reference = octomap_tree(octomap, res, logged, max_range=cutoff)
     agreement = compare(tree, reference)
     print(f"\nCARMEN MIT CSAIL, {len(log)} scans at {res} m: {agreement}")
     assert agreement.union > 500_000
@@ -597,7 +597,7 @@ def test_bag_world_loads_in_gazebo_and_lines_up_with_its_map(tmp_path: Path) -> 
     room = synthetic_room("tf", n_scans=60)
     bag = room.write(tmp_path / "r.bag", "ros1")
     cfg = load_config(None, {"terrain.height": 2.0, "world.geometry": "heightmap"})
-    result = ingest.bag2world([bag], tmp_path / "w", cfg)
+    result = scans.bag2world([bag], tmp_path / "w", cfg)
     assert {w.placement.simulator for w in result.worlds} == {"gz", "classic"}
     _, written = read_map_yaml(tmp_path / "w/map/map_gz.yaml")
     checked = check_world(result, written, tmp_path)

@@ -419,7 +419,7 @@ def test_every_error_is_one_line(
 ) -> None:
     """Libraries quote whole files or message definitions in their errors: whatever the text,
     the CLI prints one line (exit 2 for ours, 1 for a bug)."""
-    from scan2terrain import pipeline
+    from scan2terrain.commands import maps
     from scan2terrain.errors import InputError
 
     def fail(*args: object, **kwargs: object) -> None:
@@ -427,7 +427,7 @@ def test_every_error_is_one_line(
             raise InputError(Path("m.yaml"), "first line\n  second line\r\nthird")
         raise RuntimeError("x" * 1000 + "\nmore")
 
-    monkeypatch.setattr(pipeline, "map2world", fail)
+    monkeypatch.setattr(maps, "map2world", fail)
     code = main(
         [
             "map2world",

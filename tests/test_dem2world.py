@@ -16,8 +16,9 @@ import tifffile
 import yaml
 from lxml import etree
 
-from scan2terrain import pipeline, world
+from scan2terrain import world
 from scan2terrain.cli import COMMAND_DEFAULTS, main
+from scan2terrain.commands import dem
 from scan2terrain.config import load_config
 from scan2terrain.errors import ConfigError
 from scan2terrain.readers.dem import Dem, read_dem
@@ -27,7 +28,7 @@ from tests.readers.test_dem import GZ_SFBAY, MOON, SFBAY, write_geotiff
 
 def build(source: Path, out: Path, **overrides: object) -> world.Result:
     cfg = load_config(None, dict(overrides), defaults=COMMAND_DEFAULTS["dem2world"])
-    return pipeline.dem2world(source, out, cfg)
+    return dem.dem2world(source, out, cfg)
 
 
 def sample_centres(dem: Dem) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scan2terrain import grids, pipeline, world
+from scan2terrain import grids, world
+from scan2terrain.commands import maps
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid
@@ -48,7 +49,7 @@ def build(
     source: Path, out: Path, *, command: str = "map2world", **overrides: object
 ) -> world.Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
-    run = pipeline.map2world if command == "map2world" else pipeline.image2world
+    run = maps.map2world if command == "map2world" else maps.image2world
     return run(source, out, cfg)
 
 

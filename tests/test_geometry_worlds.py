@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scan2terrain import grids, pipeline, world
+from scan2terrain import grids, world
 from scan2terrain.cli import main
+from scan2terrain.commands import maps, voxels
 from scan2terrain.config import load_config
 from scan2terrain.exporters.sdf import GROUND_MARGIN
 from scan2terrain.geometry.outlines import Polygon, rasterize
@@ -43,7 +44,7 @@ GEOMETRIES = ("boxes", "polylines", "mesh")
 
 def build(source: Path, out: Path, geometry: str, **overrides: object) -> world.Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": geometry, **overrides})
-    return pipeline.map2world(source, out, cfg)
+    return maps.map2world(source, out, cfg)
 
 
 def to_grid(grid: OccupancyGrid, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -420,7 +421,7 @@ def test_octree_occupancy_walls(tmp_path: Path) -> None:
         None,
         {"terrain.height": H, "world.geometry": "boxes", "octree.z_min": 0.1, "octree.z_max": 1.8},
     )
-    result = pipeline.octree2world(ROOT / "fixtures/octomap/geb079.bt", tmp_path / "w", cfg)
+    result = voxels.octree2world(ROOT / "fixtures/octomap/geb079.bt", tmp_path / "w", cfg)
     found = check_walls(result, tmp_path)
     assert found["gz"] > 1000
 

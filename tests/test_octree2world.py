@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scan2terrain import pipeline
 from scan2terrain.cli import main
+from scan2terrain.commands import voxels
 from scan2terrain.config import load_config
 from scan2terrain.errors import InputError
 from scan2terrain.grids.projection import project_occupancy
@@ -37,7 +37,7 @@ def test_bt_to_world_lands_in_the_map_frame(tmp_path: Path) -> None:
             "world.geometry": "heightmap",
         },
     )
-    result = pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+    result = voxels.octree2world(GEB079, tmp_path / "w", cfg)
     keys, occupied = read_bt(GEB079).expand()
     grid = project_occupancy(keys, occupied, 0.08, z_min=0.1, z_max=1.8)
     assert (grid.data == 100).sum() > 1000 and (grid.data == 0).sum() > 1000
@@ -47,8 +47,8 @@ def test_bt_to_world_lands_in_the_map_frame(tmp_path: Path) -> None:
 
 def test_scan_file_is_ray_cast_and_its_octree_written(tmp_path: Path) -> None:
     cfg = load_config(None, {"octree.resolution": 0.2, "world.simulator": "gz"})
-    result = pipeline.octree2world(FR079, tmp_path / "w", cfg)
-    tree = pipeline.build_octree(FR079, cfg)
+    result = voxels.octree2world(FR079, tmp_path / "w", cfg)
+    tree = voxels.build_octree(FR079, cfg)
     keys, occupied = tree.occupied_and_free()
     written = read_bt(result.out / "octree.bt")
     assert written.resolution == 0.2
@@ -82,7 +82,7 @@ def test_height_grid_world(tmp_path: Path) -> None:
             "octree.z_max": 2.0,
         },
     )
-    result = pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+    result = voxels.octree2world(GEB079, tmp_path / "w", cfg)
     from scan2terrain.grids.projection import column_stats
 
     keys, occupied = read_bt(GEB079).expand()
@@ -172,7 +172,7 @@ def test_truncated_real_bt_and_far_origin(
 def test_height_mode_with_nothing_in_band(tmp_path: Path) -> None:
     cfg = load_config(None, {"octree.grid": "height", "octree.z_min": 100.0, "octree.z_max": 200.0})
     with pytest.raises(InputError, match="no occupied voxel in the z band"):
-        pipeline.octree2world(GEB079, tmp_path / "w", cfg)
+        voxels.octree2world(GEB079, tmp_path / "w", cfg)
     assert not (tmp_path / "w").exists()
 
 

@@ -26,12 +26,12 @@ import laspy  # type: ignore[import-untyped]
 import numpy as np
 import pytest
 
-from scan2terrain import stream
 from scan2terrain.cli import main
+from scan2terrain.commands import stream
+from scan2terrain.commands.scans import _bag_hits
 from scan2terrain.config import Config, StreamConfig, load_config
 from scan2terrain.errors import InputError
 from scan2terrain.grids.tiles import TileSet
-from scan2terrain.ingest import _bag_hits
 from scan2terrain.readers.bag import open_bag
 from tests.bagmaker import synthetic_room
 

@@ -21,8 +21,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from scan2terrain import pipeline, world
+from scan2terrain import world
 from scan2terrain.cli import COMMAND_DEFAULTS
+from scan2terrain.commands import dem, maps
 from scan2terrain.config import Config, load_config
 from scan2terrain.errors import ConfigError
 from scan2terrain.exporters import sdf
@@ -71,7 +72,7 @@ def height_world(
     **overrides: object,
 ) -> world.Result:
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
-    return pipeline.height_world(grid, Path("hills.xyz"), out, config(**overrides), overwrite=False)
+    return maps.height_world(grid, Path("hills.xyz"), out, config(**overrides), overwrite=False)
 
 
 def centres(
@@ -319,7 +320,7 @@ def test_occupancy_world_tiles_terrain_and_map(tmp_path: Path) -> None:
     pixels[rng.random(pixels.shape) < 0.01] = 0
     yaml_path = write_map(tmp_path / "m", pixels, resolution=0.1, origin="[-2.0, 1.5, 0.0]")
     cfg = config(**{"output.map_max_side": 30, "world.simulator": "both", "terrain.height": 2.0})
-    result = pipeline.map2world(yaml_path, tmp_path / "w", cfg)
+    result = maps.map2world(yaml_path, tmp_path / "w", cfg)
     (w,) = result.worlds
     assert result.tiles == (3, 2) and w.placement.simulator == "gz"
     assert w.map_yaml is None and len(w.map_tiles) == 6
@@ -329,7 +330,7 @@ def test_occupancy_world_tiles_terrain_and_map(tmp_path: Path) -> None:
     assert any("3x2 tiles map/map_<row>_<col>.pgm" in n for n in result.notes)
 
     # The same map in one piece, from a run whose map fits.
-    single = pipeline.map2world(yaml_path, tmp_path / "w1", config(**{"terrain.height": 2.0}))
+    single = maps.map2world(yaml_path, tmp_path / "w1", config(**{"terrain.height": 2.0}))
     (w1,) = single.worlds
     assert w1.map_yaml is not None
     _, whole = read_map_yaml(w1.map_yaml)
@@ -357,7 +358,7 @@ def test_walls_world_map_is_tiled_too(tmp_path: Path) -> None:
     pixels[5:40, 8:11] = 0
     yaml_path = write_map(tmp_path / "m", pixels, resolution=0.1)
     cfg = config(**{"output.map_max_side": 16, "world.geometry": "boxes"})
-    result = pipeline.map2world(yaml_path, tmp_path / "w", cfg)
+    result = maps.map2world(yaml_path, tmp_path / "w", cfg)
     (w,) = result.worlds
     assert w.map_yaml is None and [p.name for p in w.map_tiles] == [
         f"map_{i}_{j}_gz.yaml" for i in range(3) for j in range(2)
@@ -376,11 +377,11 @@ def test_dem_bigger_than_max_side_is_tiled(tmp_path: Path) -> None:
         defaults=COMMAND_DEFAULTS["dem2world"],
     )
     out = tmp_path / "w"
-    result = pipeline.dem2world(path, out, cfg)
-    dem = read_dem(path)
+    result = dem.dem2world(path, out, cfg)
+    source = read_dem(path)
     assert result.tiles == (3, 4)
     origin = Pose2D(-50 * 2.0 / 2, -40 * 2.0 / 2, 0.0)  # the DEM's centre at the origin
-    check_tiled_terrain(result, tmp_path, dem.heights, origin, 2.0, bit_depth=16, max_side=17)
+    check_tiled_terrain(result, tmp_path, source.heights, origin, 2.0, bit_depth=16, max_side=17)
     assert any("full scale" in n for n in result.notes)
 
 
@@ -405,11 +406,11 @@ def test_failure_mid_way_leaves_nothing_behind(
     monkeypatch.setattr(sdf, "model_sdf", failing)
     grid = HeightGrid(rolling(70, 45), np.ones((70, 45), dtype=bool), RES, ORIGIN)
     with pytest.raises(OSError, match="disk full"):
-        pipeline.height_world(grid, Path("hills.xyz"), old, config(), overwrite=True)
+        maps.height_world(grid, Path("hills.xyz"), old, config(), overwrite=True)
     assert calls == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]
     assert [p.name for p in old.iterdir()] == ["keep.txt"]
     calls = 0
     with pytest.raises(OSError, match="disk full"):
-        pipeline.height_world(grid, Path("hills.xyz"), tmp_path / "new", config(), overwrite=False)
+        maps.height_world(grid, Path("hills.xyz"), tmp_path / "new", config(), overwrite=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]

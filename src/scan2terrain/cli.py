@@ -706,7 +706,6 @@ def _drop_stdout() -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from scan2terrain import pipeline
     from scan2terrain.config import load_config
     from scan2terrain.steps import refuse_existing
 
@@ -721,36 +720,44 @@ def _run(args: argparse.Namespace) -> int:
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":
-        result = pipeline.map2world(args.map, args.out, cfg, overwrite=args.overwrite)
+        from scan2terrain.commands.maps import map2world
+
+        result = map2world(args.map, args.out, cfg, overwrite=args.overwrite)
     elif args.command == "octree2world":
+        from scan2terrain.commands.voxels import octree2world
+
         with ProgressBar(enabled=_show_progress(args)) as bar:
-            result = pipeline.octree2world(
+            result = octree2world(
                 args.tree, args.out, cfg, overwrite=args.overwrite, progress=bar.update
             )
     elif args.command == "dem2world":
-        result = pipeline.dem2world(args.dem, args.out, cfg, overwrite=args.overwrite)
+        from scan2terrain.commands.dem import dem2world
+
+        result = dem2world(args.dem, args.out, cfg, overwrite=args.overwrite)
     else:
-        result = pipeline.image2world(args.image, args.out, cfg, overwrite=args.overwrite)
+        from scan2terrain.commands.maps import image2world
+
+        result = image2world(args.image, args.out, cfg, overwrite=args.overwrite)
     if not args.quiet:
         print(report(result))
     return 0
 
 
 def _run_scans(args: argparse.Namespace, cfg: Config) -> int:
-    from scan2terrain import ingest
+    from scan2terrain.commands import scans
 
     if args.command == "inspect":
-        print(ingest.inspect_bag(args.bag, cfg))
+        print(scans.inspect_bag(args.bag, cfg))
         return 0
     if args.command == "convert":
-        text = ingest.convert(args.source, args.target, cfg, overwrite=args.overwrite)
+        text = scans.convert(args.source, args.target, cfg, overwrite=args.overwrite)
         if not args.quiet:
             print(text)
         return 0
     show = _show_progress(args)
     if args.command == "cloud2world":
         with TaskBar(enabled=show) as tasks:
-            result = ingest.cloud2world(
+            result = scans.cloud2world(
                 args.clouds, args.out, cfg, overwrite=args.overwrite, stream_progress=tasks.update
             )
     else:
@@ -759,7 +766,7 @@ def _run_scans(args: argparse.Namespace, cfg: Config) -> int:
             TaskBar(enabled=show) as tasks,
         ):
             progress = bar.update if bar.enabled else None  # no bar: no counting pass
-            result = ingest.bag2world(
+            result = scans.bag2world(
                 args.bag,
                 args.out,
                 cfg,

@@ -4,6 +4,7 @@ before any work (option combinations, grid sizes, output paths)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, TypeVar
@@ -43,6 +44,10 @@ from scan2terrain.types import (
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.readers.scans import ScanCounts
+
+#: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
+ScanProgress = Callable[["ScanCounts", int], None]
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 
@@ -304,3 +309,10 @@ def new_tree(cfg: Config) -> VoxelOctree:
     return VoxelOctree(
         o.resolution, SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
     )
+
+
+def grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint8]:
+    """Heights as 8-bit grey between ``lo`` (black) and ``hi`` (white), for previews."""
+    span = hi - lo if hi > lo else 1.0
+    grey: NDArray[np.uint8] = np.clip(np.rint((heights - lo) / span * 255), 0, 255).astype(np.uint8)
+    return grey

@@ -421,7 +421,7 @@ def streamed_world(
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid."""
-    from scan2terrain.pipeline import height_world, occupancy_world
+    from scan2terrain.commands.maps import height_world, occupancy_world
     from scan2terrain.steps import fill_holes, refuse_large_grid
 
     tiles = streamed.tiles

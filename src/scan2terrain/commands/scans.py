@@ -20,11 +20,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.commands.maps import occupancy_world
+from scan2terrain.commands.voxels import voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.pipeline import ScanProgress, occupancy_world, voxels_world
 from scan2terrain.readers.points import hits_of, local_origin, start_of
-from scan2terrain.steps import grid_options, new_tree, refuse_existing
+from scan2terrain.steps import ScanProgress, grid_options, new_tree, refuse_existing
 from scan2terrain.types import OccupancyGrid, Pose2D, Start, Transform
 from scan2terrain.world import Result
 
@@ -86,7 +87,7 @@ def bag2world(
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
     if streaming(cfg):
-        from scan2terrain import stream
+        from scan2terrain.commands import stream
 
         with open_bag(list(bags)) as bag:
             is_map = plan_bag(bag, cfg.scans).map_topic is not None
@@ -293,7 +294,7 @@ def cloud2world(
     from scan2terrain.readers.cloudfile import is_url, url_path
 
     if streaming(cfg):
-        from scan2terrain import stream
+        from scan2terrain.commands import stream
 
         streamed = stream.stream_clouds(files, cfg, stream_progress)
         source = url_path(files[0])

@@ -1,0 +1,181 @@
+"""octree2world: an OctoMap ``.bt`` file (pruned leaves as vertical runs) or an OctoMap text scan
+file (ray-cast into a new octree) -> octomap_server's 2D projection or a 2.5D height grid ->
+the same world folder as map2world (commands.maps)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import InputError
+from scan2terrain.steps import (
+    fill_holes,
+    grid_options,
+    new_tree,
+    refuse_existing,
+    refuse_large_grid,
+)
+from scan2terrain.types import (
+    Start,
+)
+from scan2terrain.world import (
+    Result,
+)
+
+if TYPE_CHECKING:
+    from scan2terrain.octree.tree import VoxelOctree
+
+
+from scan2terrain.commands.maps import height_world, occupancy_world
+from scan2terrain.steps import ScanProgress
+
+
+def octree2world(
+    source: Path,
+    out: Path,
+    cfg: Config,
+    *,
+    overwrite: bool = False,
+    progress: ScanProgress | None = None,
+) -> Result:
+    """An OctoMap ``.bt`` file, or an OctoMap text scan file (ray-cast into a new octree), to a
+    world folder through octomap_server's 2D projection or a 2.5D height grid. ``progress``
+    (scan files only) is called after each scan with the counts so far and a total of 0
+    (unknown: the file is read once)."""
+    from scan2terrain.octree.bt import bt_bytes, read_bt
+    from scan2terrain.readers.octomap_scan import is_scan_file
+
+    refuse_existing(out, overwrite, (source,))
+    grid_options(cfg)
+    source = Path(source)
+    extra: dict[str, bytes] = {}
+    if is_scan_file(source):
+        tree = build_octree(source, cfg, progress)
+        keys, occupied = tree.occupied_and_free()
+        resolution = tree.resolution
+        extra["octree.bt"] = bt_bytes(resolution=resolution, keys=keys, occupied=occupied)
+        runs = None
+    else:
+        from scan2terrain.grids.projection import leaf_columns
+
+        bt = read_bt(source)
+        # Pruned leaves (a free 256^3 block is common in octomap_server maps) stay vertical runs.
+        try:
+            keys, occupied, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
+        except ValueError as exc:
+            raise InputError(source, f"{exc}: too large to project") from None
+        resolution = bt.resolution
+    return voxels_world(
+        keys,
+        occupied,
+        resolution,
+        source=source,
+        out=out,
+        cfg=cfg,
+        overwrite=overwrite,
+        extra=extra,
+        runs=runs,
+    )
+
+
+def voxels_world(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    resolution: float,
+    *,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    overwrite: bool,
+    extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
+    runs: NDArray[np.uint16] | None = None,
+) -> Result:
+    """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
+    projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
+    centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_world`;
+    ``runs``: each key starts a vertical run of that many voxels (pruned leaves)."""
+    from scan2terrain.grids import projection
+
+    extra = dict(extra or {})
+    if len(keys) == 0:
+        raise InputError(source, "the octree holds no known voxel")
+    o = cfg.octree
+    if o.points != "none":
+        from scan2terrain.exporters.pointcloud import points_bytes
+        from scan2terrain.octree.keys import key_to_coord
+
+        extra[f"occupied_voxels.{o.points}"] = points_bytes(
+            key_to_coord(_occupied_voxels(keys, occupied, runs, source), resolution),
+            f".{o.points}",
+        )
+    z_min = -math.inf if o.z_min is None else o.z_min
+    z_max = math.inf if o.z_max is None else o.z_max
+    # Size the grid before allocating it (its columns span the keys' x and y range).
+    span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
+    refuse_large_grid(source, "voxels", int(span[1]), int(span[0]), resolution=resolution, cfg=cfg)
+    if o.grid == "occupancy":
+        grid = projection.project_occupancy(
+            keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
+        )
+        return occupancy_world(
+            grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start
+        )
+    stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs)
+    if not stats.known.any():
+        raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
+    heights = fill_holes(stats.to_height_grid(o.height_stat), cfg)
+    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start)
+
+
+#: Most occupied voxel centres written by ``--points`` (12 bytes each in memory, 24 in PLY).
+MAX_POINTS = 50_000_000
+
+
+def _occupied_voxels(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    runs: NDArray[np.uint16] | None,
+    source: Path,
+) -> NDArray[np.uint16]:
+    """Keys of every occupied voxel, runs expanded (counted first, refused past MAX_POINTS)."""
+    picked = keys[occupied]
+    if runs is None:
+        return picked
+    lengths = runs[occupied].astype(np.int64)
+    if int(lengths.sum()) > MAX_POINTS:
+        raise InputError(
+            source,
+            f"--points: the tree's occupied leaves hold {int(lengths.sum())} voxels, more than "
+            f"{MAX_POINTS}; leave out --points",
+        )
+    out = np.repeat(picked, lengths, axis=0)
+    starts = np.cumsum(lengths) - lengths
+    out[:, 2] += (np.arange(len(out)) - np.repeat(starts, lengths)).astype(np.uint16)
+    return out
+
+
+def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None) -> VoxelOctree:
+    """Ray-cast every scan of an OctoMap text scan file into a new octree."""
+    from scan2terrain.readers.octomap_scan import read_scans
+    from scan2terrain.readers.scans import ScanCounts
+
+    o = cfg.octree
+    tree = new_tree(cfg)
+    counts = ScanCounts()
+    for scan in read_scans(source):
+        try:
+            tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
+        except InputError as exc:
+            raise InputError(source, exc.problem) from None
+        counts.messages += 1
+        counts.inserted += 1
+        counts.points += len(scan.points)
+        if progress is not None:
+            progress(counts, 0)
+    return tree
