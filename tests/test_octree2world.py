@@ -17,7 +17,8 @@ from scan2terrain.errors import InputError
 from scan2terrain.grids.projection import project_occupancy
 from scan2terrain.octree.bt import read_bt
 from scan2terrain.readers import read_map_yaml
-from scan2terrain.readers.octomap_scan import read_scans, rotation
+from scan2terrain.readers.octomap_scan import read_scans
+from scan2terrain.readers.poses import rpy_matrix
 from tests.conftest import FIXTURES
 from tests.gazebo_harness import probe_world, terrain_height
 from tests.test_gazebo_worlds import H, check_world
@@ -108,7 +109,7 @@ def test_scan_reader_applies_node_poses(tmp_path: Path) -> None:
     np.testing.assert_allclose(scans[0].origin, [1, 2, 0.5])
     np.testing.assert_allclose(scans[0].points, [[1, 3, 0.5], [-1, 2, 0.5]], atol=1e-12)
     np.testing.assert_allclose(scans[1].points, [[3, 3, 3]])
-    r = rotation(0.1, -0.2, 0.3)
+    r = rpy_matrix(0.1, -0.2, 0.3)
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
 
 

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
+from scan2terrain.readers.poses import rpy_matrix
 
 SUFFIXES = (".dat", ".log", ".txt")
 #: Points one scan may hold (it is held in memory whole: 24 bytes a point, and more while it is
@@ -49,20 +50,6 @@ def is_scan_file(path: Path) -> bool:
     for packed in (".bz2", ".gz"):
         name = name.removesuffix(packed)
     return name.endswith(SUFFIXES)
-
-
-def rotation(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
-    """OctoMap's pose6d rotation: yaw about z, then pitch about y, then roll about x."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 def read_scans(path: Path) -> Iterator[PosedScan]:
@@ -205,7 +192,7 @@ def _posed(pts: NDArray[np.float64], pose: tuple[float, ...] | None) -> NDArray[
         return pts
     x, y, z, roll, pitch, yaw = pose
     with np.errstate(over="ignore", invalid="ignore"):  # checked by the caller
-        world: NDArray[np.float64] = pts @ rotation(roll, pitch, yaw).T + (x, y, z)
+        world: NDArray[np.float64] = pts @ rpy_matrix(roll, pitch, yaw).T + (x, y, z)
     return world
 
 
