@@ -328,12 +328,12 @@ def write_terrain(
         name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
         p = sdf.placement_for(hm, sim, name, cfg.world.sampling)
         comment = _comment(source, hm, p) + comment_extra
-        textures = f"models/{name}/{sdf.TEXTURE_DIR}"
-        files = {f"{textures}/{sdf.HEIGHTMAP_FILE}": png}
-        if sim == GZ:
-            files.update({f"{textures}/{f}": data for f, data in sdf.texture_pngs().items()})
-        files[f"models/{name}/model.sdf"] = sdf.model_sdf(hm, p, levels=levels, comment=comment)
-        files[f"models/{name}/model.config"] = sdf.model_config(p, f"Terrain from {source.name}")
+        # Classic ships its own terrain textures; gz-sim's come with the model.
+        textures = sdf.texture_pngs() if sim == GZ else {}
+        about = f"Terrain from {source.name}"
+        files = _terrain_model(
+            hm, png, p, levels=levels, comment=comment, about=about, textures=textures
+        )
         # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
         pose = spawn_pose(spawn, p.offset, 0.0 if sim == GZ else hm.z_min)
         world = sdf.world_sdf(
@@ -403,13 +403,13 @@ def write_tiles(
     for spec, hm in tiled.tiles():
         name = f"{base}_{spec.row}_{spec.col}"
         p = sdf.placement_for(hm, GZ, name, cfg.world.sampling)
-        folder = f"models/{name}"
-        files[f"{folder}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}"] = hm.png()
-        files.update({f"{folder}/{sdf.TEXTURE_DIR}/{f}": data for f, data in textures.items()})
         comment = _tile_comment(source, tiled, spec, hm) + comment_extra
-        files[f"{folder}/model.sdf"] = sdf.model_sdf(hm, p, levels=levels, comment=comment)
-        description = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
-        files[f"{folder}/model.config"] = sdf.model_config(p, description)
+        about = f"Terrain tile ({spec.row}, {spec.col}) from {source.name}"
+        files.update(
+            _terrain_model(
+                hm, hm.png(), p, levels=levels, comment=comment, about=about, textures=textures
+            )
+        )
         placements.append(p)
     pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
     world = sdf.tiled_world_sdf(
@@ -419,6 +419,26 @@ def write_tiles(
     part = SimWorld(whole, files, world, (0.0, 0.0), world_comment, pose)
     plan = WorldFolder(source, result, [part], map_out, preview, extra or {})
     return write_world_folder(plan, out, cfg, overwrite=overwrite)
+
+
+def _terrain_model(
+    hm: Heightmap,
+    png: bytes,
+    p: sdf.Placement,
+    *,
+    levels: tuple[float, float, float],
+    comment: str,
+    about: str,
+    textures: dict[str, bytes],
+) -> dict[str, bytes]:
+    """The files of one terrain model folder (models/<p.model_name>/): the heightmap PNG, the
+    ``textures``, model.sdf and model.config (``about`` its description)."""
+    folder = f"models/{p.model_name}"
+    files = {f"{folder}/{sdf.TEXTURE_DIR}/{sdf.HEIGHTMAP_FILE}": png}
+    files.update({f"{folder}/{sdf.TEXTURE_DIR}/{f}": data for f, data in textures.items()})
+    files[f"{folder}/model.sdf"] = sdf.model_sdf(hm, p, levels=levels, comment=comment)
+    files[f"{folder}/model.config"] = sdf.model_config(p, about)
+    return files
 
 
 @dataclass(frozen=True)
