@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from scan2terrain.readers.bag import TF_MESSAGE_ROS1_OLD, TF_TYPES, normalize_frame, open_bag
-from scan2terrain.types import Transform
+from scan2terrain.readers.bag import TF_MESSAGE_ROS1_OLD, TF_TYPES, open_bag
+from scan2terrain.types import Transform, normalise_frame
 from tests.bagmaker import (
     FORMATS,
     LASER_SCAN,
@@ -205,7 +205,7 @@ def test_room_tf_tree_gives_the_true_sensor_pose(tmp_path: Path, variant: Any) -
                 continue
             for t in m.transforms:
                 raw_names.update((t.header.frame_id, t.child_frame_id))
-                key = (normalize_frame(t.header.frame_id), normalize_frame(t.child_frame_id))
+                key = (normalise_frame(t.header.frame_id), normalise_frame(t.child_frame_id))
                 if topic == "/tf_static":
                     static[key] = tf_pose(t)
                 else:

@@ -24,6 +24,43 @@ FREE = 0
 OCCUPIED = 100
 
 
+def normalise_frame(name: str) -> str:
+    """The one rule for tf frame names: surrounding whitespace and leading ``/`` removed.
+
+    ROS 1 tf wrote ``/base_link`` for ``base_link``; ``"/base_link"``, ``" base_link"`` and
+    ``"base_link"`` all name the same frame.
+    """
+    return name.strip().lstrip("/")
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One posed scan in the fixed (map) frame, as every scan reader yields it.
+
+    Attributes
+    ----------
+    points : float64 (N, 3)
+        Metres, fixed frame. For a LaserScan, clear-only beams lie beyond ``max_range``.
+    origin : float64 (3,)
+        The sensor's position, fixed frame.
+    max_range : float
+        Beams longer than this are cut there and only clear (-1: unlimited).
+    stamp_ns : int
+        The scan's header stamp (bag time if the stamp is zero; 0 for a scan file).
+    topic : str
+        The bag topic ('' for a scan file).
+    heading : float
+        Yaw of the sensor's x axis in the fixed frame (radians CCW).
+    """
+
+    points: NDArray[np.float64]
+    origin: NDArray[np.float64]
+    max_range: float = -1.0
+    stamp_ns: int = 0
+    topic: str = ""
+    heading: float = 0.0
+
+
 @dataclass(frozen=True)
 class Pose2D:
     """Pose of a grid's lower-left corner in the map frame (metres, radians CCW)."""

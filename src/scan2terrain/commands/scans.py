@@ -26,13 +26,13 @@ from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.steps import ScanProgress, grid_options, new_tree, refuse_existing
-from scan2terrain.types import OccupancyGrid, Pose2D, Start, Transform
+from scan2terrain.types import OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world import Result
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers.bag import Bag
-    from scan2terrain.readers.scans import BagPlan, PosedScan
+    from scan2terrain.readers.scans import BagPlan
 
 Progress = ScanProgress
 #: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
@@ -176,7 +176,7 @@ def bag_octree(
     return tree, Ingest(counts.inserted, counts.points, tuple(notes), start)
 
 
-def _insert(tree: VoxelOctree, scan: PosedScan, source: Path) -> None:
+def _insert(tree: VoxelOctree, scan: Scan, source: Path) -> None:
     try:
         tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
     except InputError as exc:
@@ -400,7 +400,7 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
     return np.concatenate(parts), [*plan.reasons, f"scans: {len(parts)}"]
 
 
-def _hits(scans: Iterator[PosedScan]) -> Iterator[NDArray[np.float64]]:
+def _hits(scans: Iterator[Scan]) -> Iterator[NDArray[np.float64]]:
     for s in scans:
         pts = hits_of(s)
         if len(pts):

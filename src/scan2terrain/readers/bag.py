@@ -85,6 +85,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
+from scan2terrain.types import normalise_frame
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -106,7 +107,6 @@ __all__ = [
     "Bag",
     "BagWarning",
     "TopicInfo",
-    "normalize_frame",
     "open_bag",
     "resolve_time",
 ]
@@ -168,11 +168,6 @@ class TopicInfo:
     name: str
     msgtype: str | None
     count: int
-
-
-def normalize_frame(frame_id: str) -> str:
-    """A tf frame name without leading slashes (ROS1 tf wrote ``/laser`` for ``laser``)."""
-    return frame_id.lstrip("/")
 
 
 @lru_cache(maxsize=1)
@@ -797,7 +792,7 @@ class Bag:
                 frames.add(header.frame_id)
             if child := getattr(m, "child_frame_id", None):
                 frames.add(child)
-        return frozenset(normalize_frame(f) for f in frames if normalize_frame(f))
+        return frozenset(normalise_frame(f) for f in frames if normalise_frame(f))
 
 
 def _undecodable(typestore: Typestore, msgtype: str) -> str | None:

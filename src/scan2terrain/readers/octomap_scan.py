@@ -16,7 +16,6 @@ import re
 import warnings
 import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ from numpy.typing import NDArray
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers.poses import rpy_matrix
+from scan2terrain.types import Scan
 
 SUFFIXES = (".dat", ".log", ".txt")
 #: Points one scan may hold (it is held in memory whole: 24 bytes a point, and more while it is
@@ -37,14 +37,6 @@ MAX_LINE_BYTES = 4096
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-@dataclass(frozen=True)
-class PosedScan:
-    """One scan: ``points`` float64 (N, 3) in the map frame, ``origin`` (3,) the sensor position."""
-
-    points: NDArray[np.float64]
-    origin: NDArray[np.float64]
-
-
 def is_scan_file(path: Path) -> bool:
     name = path.name.lower()
     for packed in (".bz2", ".gz"):
@@ -52,7 +44,7 @@ def is_scan_file(path: Path) -> bool:
     return name.endswith(SUFFIXES)
 
 
-def read_scans(path: Path) -> Iterator[PosedScan]:
+def read_scans(path: Path) -> Iterator[Scan]:
     """Yield the scans of an OctoMap text scan file, one at a time, in the map frame.
 
     The file is read as a stream (decompressed as it is read), ``_BLOCK`` bytes at a time: only
@@ -107,7 +99,7 @@ class _Scans:
         self.points = 0  # in self.parts
         self.line = 1  # number of the next line to read
 
-    def feed(self, f: io.BufferedIOBase) -> Iterator[PosedScan]:
+    def feed(self, f: io.BufferedIOBase) -> Iterator[Scan]:
         rest = b""
         while True:
             block = f.read(_BLOCK)
@@ -127,7 +119,7 @@ class _Scans:
         if self.parts:
             yield self._scan()
 
-    def _lines(self, text: bytes) -> Iterator[PosedScan]:
+    def _lines(self, text: bytes) -> Iterator[Scan]:
         """Whole lines: the points before each NODE line end a scan, the NODE starts the next."""
         at = 0
         for node in _NODE.finditer(text):
@@ -179,12 +171,12 @@ class _Scans:
         self.parts.append(world)
         self.points += len(world)
 
-    def _scan(self) -> PosedScan:
+    def _scan(self) -> Scan:
         points = self.parts[0] if len(self.parts) == 1 else np.concatenate(self.parts)
         origin = np.zeros(3) if self.pose is None else np.array(self.pose[:3])
         self.parts, self.points = [], 0
         self.count += 1
-        return PosedScan(points, origin)
+        return Scan(points, origin)
 
 
 def _posed(pts: NDArray[np.float64], pose: tuple[float, ...] | None) -> NDArray[np.float64]:

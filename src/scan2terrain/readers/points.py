@@ -1,24 +1,19 @@
-"""What scans and clouds contribute in the map frame, shared by the octree path (ingest.py) and
-the streamed path (stream.py): a posed scan's hits, where the recording started, and the local
-origin subtracted from clouds far from theirs (UTM)."""
+"""What scans and clouds contribute in the map frame, shared by the octree path
+(commands/scans.py) and the streamed path (commands/stream.py): a posed scan's hits, where the
+recording started, and the local origin subtracted from clouds far from theirs (UTM)."""
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.types import Pose2D, Start
-
-if TYPE_CHECKING:
-    from scan2terrain.readers.scans import PosedScan
+from scan2terrain.types import Pose2D, Scan, Start
 
 #: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
 FAR = 1000.0
 
 
-def hits_of(scan: PosedScan) -> NDArray[np.float64]:
+def hits_of(scan: Scan) -> NDArray[np.float64]:
     """A scan's hits: its points, less a LaserScan's clear-only beams (beyond max range)."""
     if scan.max_range <= 0:
         return scan.points
@@ -28,7 +23,7 @@ def hits_of(scan: PosedScan) -> NDArray[np.float64]:
     return hits
 
 
-def start_of(scan: PosedScan) -> Start:
+def start_of(scan: Scan) -> Start:
     """Where the robot was at its first posed scan: the sensor's position and heading."""
     x, y = float(scan.origin[0]), float(scan.origin[1])
     why = f"from the recorded start ({scan.topic} at {scan.stamp_ns / 1e9:.3f} s)"

@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
-from scan2terrain.types import Transform
+from scan2terrain.types import Transform, normalise_frame
 
 __all__ = [
     "DEFAULT_MAX_GAP_NS",
@@ -73,7 +73,6 @@ __all__ = [
     "TfEdge",
     "fixed_pose",
     "mount",
-    "normalise_frame",
     "odometry_track",
     "read_tum",
     "rpy_matrix",
@@ -93,14 +92,6 @@ _MAX_ABS_SECONDS = 9.2e9
 _TUM_COLUMNS = "t x y z qx qy qz qw"
 #: The largest TUM file read (it is read whole): 4 million poses of 64 bytes, 11 hours at 100 Hz.
 MAX_TUM_BYTES = 1 << 28
-
-
-def normalise_frame(name: str) -> str:
-    """Canonical tf frame name: surrounding whitespace and leading ``/`` removed.
-
-    ``"/base_link"``, ``" base_link"`` and ``"base_link"`` all name the same frame.
-    """
-    return name.strip().lstrip("/")
 
 
 def _fmt_time(t_ns: int) -> str:

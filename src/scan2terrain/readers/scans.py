@@ -57,42 +57,14 @@ from scan2terrain.readers.poses import (
     PoseTrack,
     TfBuffer,
     mount,
-    normalise_frame,
     odometry_track,
     read_tum,
 )
-from scan2terrain.types import Pose2D, Transform
+from scan2terrain.types import Pose2D, Scan, Transform, normalise_frame
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
 SCAN_TYPES = (LASER_SCAN, POINT_CLOUD2)
-
-
-@dataclass(frozen=True)
-class PosedScan:
-    """One scan in the fixed frame.
-
-    Attributes
-    ----------
-    points : float64 (N, 3)
-        Metres, fixed frame. For a LaserScan, clear-only beams lie beyond ``max_range``.
-    origin : float64 (3,)
-        The sensor's position, fixed frame.
-    max_range : float
-        Beams longer than this are cut there and only clear (-1: unlimited).
-    stamp_ns : int
-        The scan's header stamp (bag time if the stamp is zero).
-    topic : str
-    heading : float
-        Yaw of the sensor's x axis in the fixed frame (radians CCW).
-    """
-
-    points: NDArray[np.float64]
-    origin: NDArray[np.float64]
-    max_range: float
-    stamp_ns: int
-    topic: str
-    heading: float = 0.0
 
 
 @dataclass
@@ -368,7 +340,7 @@ class _Poser:
 
 def posed_scans(
     bag: Bag, cfg: ScansConfig, plan: BagPlan, counts: ScanCounts, *, max_range: float = -1.0
-) -> Iterator[PosedScan]:
+) -> Iterator[Scan]:
     """Stream the plan's scans in the fixed frame (see the module docstring); ``counts`` is
     updated as they go. ``max_range`` (metres, < 0: none) also cuts PointCloud2 beams."""
     poser = _Poser(bag, cfg, plan)
@@ -384,11 +356,11 @@ def posed_scans(
 
 def _pose_batch(
     batch: list[tuple[str, int, Any]], poser: _Poser, counts: ScanCounts, max_range: float
-) -> Iterator[PosedScan]:
+) -> Iterator[Scan]:
     by_topic: dict[str, list[tuple[int, Any]]] = {}
     for topic, t_ns, msg in batch:
         by_topic.setdefault(topic, []).append((t_ns, msg))
-    out: list[PosedScan] = []
+    out: list[Scan] = []
     for topic, items in by_topic.items():
         stamps = np.array([_stamp(m, t) for t, m in items], dtype=np.int64)
         valid, rot, trans = poser.poses(topic, stamps)
@@ -420,7 +392,7 @@ def _pose_batch(
             world += trans[j]
             heading = math.atan2(float(rot[j][1, 0]), float(rot[j][0, 0]))
             origin = np.array(trans[j], dtype=np.float64)
-            out.append(PosedScan(world, origin, mr, int(stamps[j]), topic, heading))
+            out.append(Scan(world, origin, mr, int(stamps[j]), topic, heading))
     out.sort(key=lambda s: s.stamp_ns)
     yield from out
 
