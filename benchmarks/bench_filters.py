@@ -20,12 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scan2terrain.filters import (
-    majority_filter,
-    paper_median_filter,
-    remove_speckles,
-    thin_wall_median_filter,
-)
+from scan2terrain.filters.majority import majority_filter
+from scan2terrain.filters.median import paper_median_filter, thin_wall_median_filter
+from scan2terrain.filters.speckle import remove_speckles
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN
 
 

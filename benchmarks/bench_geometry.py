@@ -47,12 +47,13 @@ def end_to_end(exe: Path, out: Path, runs: int) -> list[tuple[str, list[float], 
 
 
 def steps(runs: int) -> list[tuple[str, list[float], float | None]]:
-    from scan2terrain import steps, world
+    from scan2terrain import steps
     from scan2terrain.config import Config
     from scan2terrain.exporters import meshfile, sdf
     from scan2terrain.geometry import mesh, outlines
     from scan2terrain.geometry.boxes import merge_boxes
     from scan2terrain.readers import read_map_yaml
+    from scan2terrain.world import walls as world
 
     meta, grid = read_map_yaml(WILLOW)
     trinary = steps.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)

@@ -44,6 +44,7 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
     from scan2terrain.config import Config
     from scan2terrain.exporters import meshfile
     from scan2terrain.geometry import mesh, outlines
+    from scan2terrain.geometry.simplify import simplify
     from scan2terrain.readers import read_map_yaml
 
     meta, grid = read_map_yaml(path)
@@ -51,7 +52,7 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
     occ = steps.filter_occupancy(trinary, Config()) == 100
     r, origin = grid.resolution, grid.origin
     exact = outlines.trace(occ, r, origin)
-    simple = outlines.simplify(exact, r, resolution=r, origin=origin)  # also warms numba up
+    simple = simplify(exact, r, resolution=r, origin=origin)  # also warms numba up
     m = mesh.extrude(exact, HEIGHT)
     s = mesh.extrude(simple, HEIGHT)
 
@@ -62,7 +63,7 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
 
     steps: dict[str, Callable[[], Any]] = {
         "trace": lambda: outlines.trace(occ, r, origin),
-        "simplify (1 cell)": lambda: outlines.simplify(exact, r, resolution=r, origin=origin),
+        "simplify (1 cell)": lambda: simplify(exact, r, resolution=r, origin=origin),
         "extrude (exact)": lambda: mesh.extrude(exact, HEIGHT),
         "extrude (simplified)": lambda: mesh.extrude(simple, HEIGHT),
         "stl_bytes (exact)": lambda: meshfile.stl_bytes(m),

@@ -242,8 +242,9 @@ ENDPOINT_STAGES += ("_fresh_blocks", "adopt_sparse", "mark_point_bits", "apply_b
 @contextlib.contextmanager
 def stage_timer(acc: dict[str, float], names: tuple[str, ...] = STAGES) -> Iterator[None]:
     """Accumulate the time spent in VoxelOctree's stages into ``acc`` (the kernels are looked up
-    on the module, or in its PARALLEL and SERIAL kernel sets, at call time, so wrapping those
+    on their modules, or in the PARALLEL and SERIAL kernel sets, at call time, so wrapping those
     times them)."""
+    from scan2terrain.octree import _group, _points, _raycast, _sparse
     from scan2terrain.octree import _kernels as K
     from scan2terrain.octree.tree import VoxelOctree
 
@@ -259,8 +260,11 @@ def stage_timer(acc: dict[str, float], names: tuple[str, ...] = STAGES) -> Itera
         return inner
 
     saved: list[tuple[Any, str, Any]] = []
+    modules = (_raycast, _points, _group, _sparse)
     for name in names:
-        owner: Any = VoxelOctree if name.startswith("_") else K
+        owner: Any = VoxelOctree
+        if not name.startswith("_"):
+            owner = next((m for m in modules if name in m.__dict__), K)
         if name in K.Kernels._fields or name not in owner.__dict__:
             continue  # in the kernel sets (below), or not in this version of the code
         original = owner.__dict__[name]

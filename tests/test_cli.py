@@ -367,7 +367,7 @@ def test_progress_rates_count_from_the_start(
     first showed (after the first task: 110,000 points once read as 7819 M points/s)."""
     from types import SimpleNamespace
 
-    from scan2terrain import cli
+    from scan2terrain.cli import display as cli
 
     now = [100.0]
     monkeypatch.setattr(cli.time, "monotonic", lambda: now[0])

@@ -16,17 +16,17 @@ import tifffile
 import yaml
 from lxml import etree
 
-from scan2terrain import world
 from scan2terrain.cli import COMMAND_DEFAULTS, main
 from scan2terrain.commands import dem
 from scan2terrain.config import load_config
 from scan2terrain.errors import ConfigError
 from scan2terrain.readers.dem import Dem, read_dem
+from scan2terrain.world.folder import Result
 from tests.gazebo_harness import ProbeError, probe_world, terrain_height
 from tests.readers.test_dem import GZ_SFBAY, MOON, SFBAY, write_geotiff
 
 
-def build(source: Path, out: Path, **overrides: object) -> world.Result:
+def build(source: Path, out: Path, **overrides: object) -> Result:
     cfg = load_config(None, dict(overrides), defaults=COMMAND_DEFAULTS["dem2world"])
     return dem.dem2world(source, out, cfg)
 
@@ -40,7 +40,7 @@ def sample_centres(dem: Dem) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(x, y)
 
 
-def ground(result: world.Result, tmp: Path, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def ground(result: Result, tmp: Path, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Ground height at world (x, y) in the one world of ``result``, as gz-common builds it."""
     (w,) = result.worlds
     sim = w.placement.simulator

@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scan2terrain import grids, world
+from scan2terrain import grids
 from scan2terrain.commands import maps
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid
+from scan2terrain.world.folder import Result, WorldOutput
 from tests.conftest import IMAGES, MAPS, write_map
 from tests.gazebo_harness import probe_world, terrain_height
 
@@ -45,16 +46,14 @@ def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
     return grid.origin.transform((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
 
 
-def build(
-    source: Path, out: Path, *, command: str = "map2world", **overrides: object
-) -> world.Result:
+def build(source: Path, out: Path, *, command: str = "map2world", **overrides: object) -> Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
     run = maps.map2world if command == "map2world" else maps.image2world
     return run(source, out, cfg)
 
 
 def check_world(
-    result: world.Result,
+    result: Result,
     reference: OccupancyGrid,
     tmp: Path,
     *,
@@ -108,10 +107,10 @@ def test_filtered_map_export_lines_up_with_the_world(tmp_path: Path, name: str) 
         assert w.map_yaml is not None
         _, exported = read_map_yaml(w.map_yaml)
         # The exported map is already in this simulator's world frame: offset (0, 0).
-        single = world.Result(
+        single = Result(
             out=result.out,
             worlds=[
-                world.WorldOutput(
+                WorldOutput(
                     w.placement.__class__(**{**w.placement.__dict__, "offset": (0.0, 0.0)}),
                     w.world,
                     w.models,

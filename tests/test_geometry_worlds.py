@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scan2terrain import grids, world
+from scan2terrain import grids
 from scan2terrain.cli import main
 from scan2terrain.commands import maps, voxels
 from scan2terrain.config import load_config
@@ -35,6 +35,7 @@ from scan2terrain.exporters.sdf import GROUND_MARGIN
 from scan2terrain.geometry.outlines import Polygon, rasterize
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid, Pose2D
+from scan2terrain.world.folder import Result
 from tests.conftest import MAPS, ROOT, write_map
 from tests.gazebo_harness import ShapeProbe, probe_shapes
 
@@ -42,7 +43,7 @@ H = 2.0  # wall height used throughout
 GEOMETRIES = ("boxes", "polylines", "mesh")
 
 
-def build(source: Path, out: Path, geometry: str, **overrides: object) -> world.Result:
+def build(source: Path, out: Path, geometry: str, **overrides: object) -> Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": geometry, **overrides})
     return maps.map2world(source, out, cfg)
 
@@ -193,7 +194,7 @@ def check_surface(
     assert np.all(np.isclose(z, 0.0, atol=1e-6) | np.isclose(z, H, atol=1e-6))
     # Closed and consistently oriented: each directed edge has as many reverse twins as uses.
     # Boxes may share vertical edges where two solids touch at a corner; the wall mesh moves its
-    # vertices there a hair apart (mesh.SPLIT), so its edges are each used once.
+    # vertices there a hair apart (contacts.SPLIT), so its edges are each used once.
     keys = np.round(triangles * 1e6).astype(np.int64)
     forward = np.concatenate(
         [np.concatenate([keys[:, k], keys[:, (k + 1) % 3]], axis=1) for k in range(3)]
@@ -220,7 +221,7 @@ def check_surface(
 
 
 def check_walls(
-    result: world.Result, tmp: Path, *, reference: OccupancyGrid | None = None
+    result: Result, tmp: Path, *, reference: OccupancyGrid | None = None
 ) -> dict[str, int]:
     """Check every world of ``result``; the walls must be the occupied cells of ``reference``
     (default: the map the command wrote for that world). Returns the wall geometries per sim."""

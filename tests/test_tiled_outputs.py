@@ -21,7 +21,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from scan2terrain import world
 from scan2terrain.cli import COMMAND_DEFAULTS
 from scan2terrain.commands import dem, maps
 from scan2terrain.config import Config, load_config
@@ -33,6 +32,7 @@ from scan2terrain.exporters.tiles import TileSpec, make_tiled_heightmap, tile_sp
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.dem import read_dem
 from scan2terrain.types import HeightGrid, OccupancyGrid, Pose2D
+from scan2terrain.world.folder import Result
 from tests.conftest import write_map
 from tests.gazebo_harness import HeightmapProbe, probe_world, terrain_height, vertex_world_xy
 from tests.readers.test_dem import write_geotiff
@@ -70,7 +70,7 @@ def height_world(
     origin: Pose2D = ORIGIN,
     res: float = RES,
     **overrides: object,
-) -> world.Result:
+) -> Result:
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
     return maps.height_world(grid, Path("hills.xyz"), out, config(**overrides), overwrite=False)
 
@@ -82,7 +82,7 @@ def centres(
     return origin.transform((np.asarray(cols) + 0.5) * res, (np.asarray(rows) + 0.5) * res)
 
 
-def collisions(result: world.Result, tmp: Path) -> dict[str, HeightmapProbe]:
+def collisions(result: Result, tmp: Path) -> dict[str, HeightmapProbe]:
     """The world's collision heightmaps by model name, as Gazebo's code loads them."""
     (w,) = result.worlds
     assert w.placement.simulator == "gz"
@@ -96,7 +96,7 @@ def collisions(result: world.Result, tmp: Path) -> dict[str, HeightmapProbe]:
 
 
 def check_tiled_terrain(
-    result: world.Result,
+    result: Result,
     tmp: Path,
     heights: np.ndarray,
     origin: Pose2D,

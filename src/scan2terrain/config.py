@@ -11,17 +11,39 @@ import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, get_type_hints
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from scan2terrain.errors import ConfigError
+from scan2terrain.filters.registry import FILTERS as _FILTER_REGISTRY
 
-FILTERS = ("none", "median", "majority", "paper", "thin_wall")
-UNKNOWN_POLICIES = ("free", "obstacle", "height")
-SIMULATORS = ("gz", "classic", "both")
-GEOMETRIES = ("auto", "heightmap", "mesh", "boxes", "polylines")
-POSE_SOURCES = ("auto", "tf", "odom", "trajectory", "fixed")
-HEIGHT_STATS = ("max", "min", "mean")
-FILLS = ("none", "nearest", "idw")
+# The option vocabulary, declared once: the config fields are typed with these, the CLI takes
+# its ``choices=`` from them, and :meth:`Config.validate` checks every field typed with one.
+UnknownPolicy = Literal["free", "obstacle", "height"]
+Simulator = Literal["gz", "classic", "both"]
+Geometry = Literal["auto", "heightmap", "mesh", "boxes", "polylines"]
+GridKind = Literal["occupancy", "height"]
+HeightStat = Literal["max", "min", "mean"]
+Fill = Literal["none", "nearest", "idw"]
+VoxelPoints = Literal["none", "ply", "pcd"]
+PoseSource = Literal["auto", "tf", "odom", "trajectory", "fixed"]
+InsertMode = Literal["auto", "raycast", "endpoints"]
+LocalOrigin = Literal["auto", "none"]
+BitDepth = Literal[8, 16]
+
+#: Filter kinds: 'none' and the names of filters.registry.FILTERS (adding a filter there adds
+#: it here, to the CLI's choices and to validation).
+FILTERS: tuple[str, ...] = ("none", *_FILTER_REGISTRY)
+UNKNOWN_POLICIES: tuple[UnknownPolicy, ...] = get_args(UnknownPolicy)
+SIMULATORS: tuple[Simulator, ...] = get_args(Simulator)
+GEOMETRIES: tuple[Geometry, ...] = get_args(Geometry)
+GRID_KINDS: tuple[GridKind, ...] = get_args(GridKind)
+HEIGHT_STATS: tuple[HeightStat, ...] = get_args(HeightStat)
+FILLS: tuple[Fill, ...] = get_args(Fill)
+VOXEL_POINTS: tuple[VoxelPoints, ...] = get_args(VoxelPoints)
+POSE_SOURCES: tuple[PoseSource, ...] = get_args(PoseSource)
+INSERT_MODES: tuple[InsertMode, ...] = get_args(InsertMode)
+LOCAL_ORIGINS: tuple[LocalOrigin, ...] = get_args(LocalOrigin)
+BIT_DEPTHS: tuple[BitDepth, ...] = get_args(BitDepth)
 
 
 @dataclass
@@ -46,7 +68,8 @@ class FilterConfig:
     """Filtering of the occupancy grid (or the grey image) before it becomes terrain."""
 
     enabled: bool = True
-    #: none | median | majority | paper (the paper's modified median) | thin_wall (also diagonals)
+    #: none, or a name in filters.registry.FILTERS: median | majority | paper (the paper's
+    #: modified median) | thin_wall (also diagonals)
     kind: str = "thin_wall"
     #: Window side for median/majority (odd, >= 3); paper/thin_wall always use 3x3.
     size: int = 3
@@ -61,12 +84,12 @@ class TerrainConfig:
     #: Height of occupied cells (maps) or of a white pixel (images), metres.
     height: float = 2.0
     #: free | obstacle | height: unknown cells as floor, as walls, or at ``unknown_height``.
-    unknown: str = "free"
+    unknown: UnknownPolicy = "free"
     unknown_height: float = 0.5
     #: Integer up-sampling: each cell becomes k x k pixels (thin walls get flat tops).
     upsample: int = 1
     #: 8 (every Gazebo) or 16 (gz-sim Garden and newer).
-    bit_depth: int = 8
+    bit_depth: BitDepth = 8
     #: Largest heightmap side (2^n+1 pixels); a bigger grid is written as terrain tiles of this
     #: side placed edge to edge, neighbours sharing their border samples.
     max_side: int = 4097
@@ -78,7 +101,7 @@ class WorldConfig:
 
     #: gz (gz-sim, SDF 1.9, DART + bullet collision detector) | classic (Gazebo 11, SDF 1.6)
     #: | both (two worlds side by side, one model folder each).
-    simulator: str = "both"
+    simulator: Simulator = "both"
     #: Model name; None derives a unique one from the input name and the terrain's content.
     model_name: str | None = None
     #: Vertex sampling written into the SDF (None: 1 for gz, 2 for classic, each one's default).
@@ -88,7 +111,7 @@ class WorldConfig:
     #: ``terrain.height`` high on a ground plane, map frame = world frame in both simulators;
     #: or heightmap. auto: mesh for occupancy grids (exact and the fastest in physics), a
     #: heightmap for heights (images, DEMs, height grids, ``terrain.unknown: height``).
-    geometry: str = "auto"
+    geometry: Geometry = "auto"
     #: Outline simplification for mesh/polylines: staircases straightened within this many
     #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
     simplify: float = 0.0
@@ -131,16 +154,16 @@ class OctreeConfig:
     z_min: float | None = None
     z_max: float | None = None
     #: occupancy (octomap_server's projection) | height (2.5D: a column statistic of occupied z).
-    grid: str = "occupancy"
+    grid: GridKind = "occupancy"
     #: max | min | mean of the occupied voxel centres of a column (grid: height).
-    height_stat: str = "max"
+    height_stat: HeightStat = "max"
     #: none | nearest | idw: how empty columns of a height grid are filled.
-    fill: str = "nearest"
+    fill: Fill = "nearest"
     #: Empty columns farther than this (metres) from a known one stay empty (nearest fill);
     #: None: 4 cells, at least 1 m (a fixed distance shorter than a coarse cell fills nothing).
     fill_max_distance: float | None = None
     #: none | ply | pcd: also write the occupied voxel centres as OUT/occupied_voxels.<ext>.
-    points: str = "none"
+    points: VoxelPoints = "none"
 
 
 @dataclass
@@ -154,7 +177,7 @@ class ScansConfig:
     start: float | None = None
     end: float | None = None
     #: auto (tf, else odometry) | tf | odom | trajectory | fixed
-    poses: str = "auto"
+    poses: PoseSource = "auto"
     #: The frame the world is built in; None: 'map' if the tf tree has it, else 'odom'.
     fixed_frame: str | None = None
     #: Odometry topic (poses: odom); None picks the bag's only nav_msgs/Odometry topic.
@@ -168,7 +191,7 @@ class ScansConfig:
     pose: list[float] | None = None
     #: raycast (free space too, as OctoMap's insertPointCloud) | endpoints (hits only, fast;
     #: for clouds that are already registered) | auto (raycast for bags, endpoints for files).
-    insert: str = "auto"
+    insert: InsertMode = "auto"
     #: Longest gap (seconds) in tf or odometry that poses are interpolated across.
     max_gap: float = 1.0
     #: LAS/LAZ classes to keep (e.g. [2]: ground); None keeps every point.
@@ -177,7 +200,7 @@ class ScansConfig:
     map_message: int = -1
     #: Cloud files: subtract a local origin (auto: when the points lie beyond 1 km of the
     #: origin, e.g. UTM, the rounded centre of their bounding box) | none.
-    local_origin: str = "auto"
+    local_origin: LocalOrigin = "auto"
 
 
 @dataclass
@@ -228,6 +251,7 @@ class Config:
     def validate(self) -> Config:
         """Raise :class:`ConfigError` naming the first bad value; return self."""
         c = self
+        _check_choices(c)
         _check(c.filter.kind in FILTERS, "filter.kind", c.filter.kind, f"one of {FILTERS}")
         _check(
             3 <= c.filter.size <= MAX_FILTER and c.filter.size % 2 == 1,
@@ -248,25 +272,12 @@ class Config:
             f"in (0, {MAX_METRES:g}] metres",
         )
         _check(
-            c.terrain.unknown in UNKNOWN_POLICIES,
-            "terrain.unknown",
-            c.terrain.unknown,
-            f"one of {UNKNOWN_POLICIES}",
-        )
-        _check(
             0 <= c.terrain.unknown_height <= MAX_METRES,
             "terrain.unknown_height",
             c.terrain.unknown_height,
             f"in [0, {MAX_METRES:g}] metres",
         )
         _check(1 <= c.terrain.upsample <= 16, "terrain.upsample", c.terrain.upsample, "1..16")
-        _check(c.terrain.bit_depth in (8, 16), "terrain.bit_depth", c.terrain.bit_depth, "8 or 16")
-        _check(
-            c.world.simulator in SIMULATORS,
-            "world.simulator",
-            c.world.simulator,
-            f"one of {SIMULATORS}",
-        )
         _check(
             c.world.sampling is None or c.world.sampling >= 1,
             "world.sampling",
@@ -274,7 +285,6 @@ class Config:
             ">= 1",
         )
         w = c.world
-        _check(w.geometry in GEOMETRIES, "world.geometry", w.geometry, f"one of {GEOMETRIES}")
         _check(
             0 <= w.simplify < float("inf"), "world.simplify", w.simplify, ">= 0 metres (0: exact)"
         )
@@ -347,29 +357,13 @@ class Config:
             o.z_min,
             "<= z_max",
         )
-        _check(o.grid in ("occupancy", "height"), "octree.grid", o.grid, "occupancy or height")
-        _check(
-            o.height_stat in HEIGHT_STATS,
-            "octree.height_stat",
-            o.height_stat,
-            "max, min or mean",
-        )
-        _check(o.fill in FILLS, "octree.fill", o.fill, f"one of {FILLS}")
         _check(
             o.fill_max_distance is None or o.fill_max_distance > 0,
             "octree.fill_max_distance",
             o.fill_max_distance,
             "> 0 metres, or null (4 cells, at least 1 m)",
         )
-        _check(o.points in ("none", "ply", "pcd"), "octree.points", o.points, "none, ply or pcd")
         sc = c.scans
-        _check(sc.poses in POSE_SOURCES, "scans.poses", sc.poses, f"one of {POSE_SOURCES}")
-        _check(
-            sc.insert in ("auto", "raycast", "endpoints"),
-            "scans.insert",
-            sc.insert,
-            "auto, raycast or endpoints",
-        )
         for name in ("mount", "pose"):
             v = getattr(sc, name)
             _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
@@ -379,9 +373,6 @@ class Config:
             "scans.las_classes",
             sc.las_classes,
             "LAS classification codes, 0..255",
-        )
-        _check(
-            sc.local_origin in ("auto", "none"), "scans.local_origin", sc.local_origin, "auto/none"
         )
         _check(
             sc.start is None or sc.end is None or sc.start <= sc.end,
@@ -454,6 +445,20 @@ MIN_VOXEL = 1e-3  #: OctoMap keys are 16-bit: at 1 mm the octree spans 65 m
 MAX_SIDE = 1 << 20  #: canvas sides and shifts, heightmap and map tile sides, cells
 
 
+def _check_choices(target: Any, prefix: str = "") -> None:
+    """Every field typed with a Literal of the vocabulary holds one of its values."""
+    hints = get_type_hints(type(target))
+    for f in fields(target):
+        value = getattr(target, f.name)
+        if dataclasses.is_dataclass(value):
+            _check_choices(value, f"{f.name}.")
+        elif get_origin(hints[f.name]) is Literal:
+            choices = get_args(hints[f.name])
+            # bool is an int: True must not pass for 1, nor 8.0 for 8.
+            ok = any(value == v and type(value) is type(v) for v in choices)
+            _check(ok, f"{prefix}{f.name}", value, f"one of {choices}")
+
+
 def _check(ok: bool, name: str, value: object, want: str) -> None:
     if not ok:
         raise ConfigError(f"config value {name} = {value!r} is invalid: must be {want}")
@@ -501,9 +506,9 @@ def _read_yaml(path: Path) -> Any:
     except (yaml.YAMLError, UnicodeDecodeError, RecursionError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(f"{path}: malformed config YAML ({type(exc).__name__})") from None
+        raise ConfigError(f"{path}: malformed config YAML ({type(exc).__name__})") from exc
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror or exc})") from None
+        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror or exc})") from exc
 
 
 def _nest(dotted: str, value: Any) -> dict[str, Any]:
@@ -534,6 +539,8 @@ def _apply(target: Any, doc: dict[str, Any], source: str, prefix: str = "") -> N
 
 
 def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
+    if get_origin(hint) is Literal:  # the vocabulary: its values' type; validate checks them
+        hint = type(get_args(hint)[0])
     text = str(hint)
     if value is None:
         if "None" in text:

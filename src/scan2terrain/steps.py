@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,13 +18,8 @@ from scan2terrain.exporters.heightmap import CLASSIC, Heightmap, make_heightmap
 from scan2terrain.exporters.output import OutputDir
 from scan2terrain.exporters.preview import preview_png
 from scan2terrain.exporters.tiles import TiledHeightmap, make_tiled_heightmap
-from scan2terrain.filters import (
-    majority_filter,
-    median_filter,
-    paper_median_filter,
-    remove_speckles,
-    thin_wall_median_filter,
-)
+from scan2terrain.filters.registry import run_filter
+from scan2terrain.filters.speckle import remove_speckles
 from scan2terrain.grids import (
     canvas,
     from_rank,
@@ -89,7 +84,7 @@ def filter_occupancy(trinary: NDArray[np.int8], cfg: Config) -> NDArray[np.int8]
     if not filtering(cfg, occupancy=True):
         return trinary
     f = cfg.filter
-    rank = _apply_filter(to_rank(trinary), f.kind, f.size, fallback="majority")
+    rank = run_filter(to_rank(trinary), f.kind, f.size, fallback="majority")
     if f.speckle_min_cells > 1:
         rank = remove_speckles(
             rank,
@@ -104,21 +99,7 @@ def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:
     """Apply the configured filter to a grey image (median fallback: greys are ordered)."""
     if not filtering(cfg, occupancy=False):
         return values
-    return _apply_filter(values, cfg.filter.kind, cfg.filter.size, fallback="median")
-
-
-def _apply_filter(
-    a: NDArray[ScalarT], kind: str, size: int, *, fallback: Literal["majority", "median"]
-) -> NDArray[ScalarT]:
-    if kind == "median":
-        return median_filter(a, size=size)
-    if kind == "majority":
-        return majority_filter(a, size=size)
-    if kind == "paper":
-        return paper_median_filter(a, fallback=fallback)
-    if kind == "thin_wall":
-        return thin_wall_median_filter(a, fallback=fallback)
-    return a
+    return run_filter(values, cfg.filter.kind, cfg.filter.size, fallback="median")
 
 
 def terrain_heightmap(

@@ -16,14 +16,14 @@ from hypothesis.extra import numpy as hnp
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scan2terrain.filters import (
-    majority_filter,
+from scan2terrain.filters import median as median_module
+from scan2terrain.filters.majority import majority_filter
+from scan2terrain.filters.median import (
     median_filter,
     paper_median_filter,
+    protected_mask,
     thin_wall_median_filter,
 )
-from scan2terrain.filters import median as median_module
-from scan2terrain.filters.median import protected_mask
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN
 
 Array = NDArray[Any]

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from numpy.typing import NDArray
 
-from scan2terrain.filters import remove_speckles
+from scan2terrain.filters.speckle import remove_speckles
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN
 
 

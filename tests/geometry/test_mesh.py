@@ -17,8 +17,10 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from scan2terrain.exporters.meshfile import dae_bytes, obj_bytes, stl_bytes
-from scan2terrain.geometry.mesh import SPLIT_MAX, Mesh, extrude, is_watertight
-from scan2terrain.geometry.outlines import Polygon, rasterize, simplify, trace
+from scan2terrain.geometry.contacts import SPLIT_MAX
+from scan2terrain.geometry.mesh import Mesh, extrude, is_watertight
+from scan2terrain.geometry.outlines import Polygon, rasterize, trace
+from scan2terrain.geometry.simplify import simplify
 from scan2terrain.types import Pose2D
 from tests.geometry.test_outlines import default_filtered, grid
 

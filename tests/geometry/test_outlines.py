@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from scan2terrain.config import Config
-from scan2terrain.geometry.outlines import Polygon, rasterize, simplify, trace
+from scan2terrain.geometry.outlines import Polygon, rasterize, trace
+from scan2terrain.geometry.simplify import simplify
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.steps import classify, filter_occupancy
 from scan2terrain.types import OCCUPIED, Pose2D

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.octree import _kernels as K
+from scan2terrain.octree import _raycast
 from scan2terrain.octree.tree import InsertStats, SensorModel, VoxelOctree
 from tests.octree._octomap_ref import (
     assert_identical,
@@ -177,11 +178,11 @@ def test_room_ten_scans_with_max_range_equal_octomap(octomap: ModuleType) -> Non
 
 
 def spy(monkeypatch: pytest.MonkeyPatch, name: str) -> list[tuple[Any, ...]]:
-    """Record the arguments of every call to kernel ``name`` made by tree.py (for the kernels
-    that also have a serial build, the calls of the parallel one)."""
+    """Record the arguments of every call to ray-casting kernel ``name`` made by tree.py (for
+    the kernels that also have a serial build, the calls of the parallel one)."""
     calls: list[tuple[Any, ...]] = []
     parallel = name in K.Kernels._fields
-    kernel = getattr(K.PARALLEL if parallel else K, name)
+    kernel = getattr(K.PARALLEL if parallel else _raycast, name)
 
     def wrapper(*args: Any) -> Any:
         calls.append(args)
@@ -190,7 +191,7 @@ def spy(monkeypatch: pytest.MonkeyPatch, name: str) -> list[tuple[Any, ...]]:
     if parallel:
         monkeypatch.setattr(K, "PARALLEL", K.PARALLEL._replace(**{name: wrapper}))
     else:
-        monkeypatch.setattr(K, name, wrapper)
+        monkeypatch.setattr(_raycast, name, wrapper)
     return calls
 
 

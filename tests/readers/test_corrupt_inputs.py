@@ -54,7 +54,8 @@ def isolated(code: str, limit: int = 2 << 30) -> list[str]:
 READ_EACH = """
 import json
 from scan2terrain.errors import InputError
-from scan2terrain.readers.cloudfile import iter_las, las_info, read_cloud
+from scan2terrain.readers.cloudfile import read_cloud
+from scan2terrain.readers.las import iter_las, las_info
 for path in json.loads({paths!r}):
     for name, read in (("read_cloud", read_cloud), ("las_info", las_info),
                        ("iter_las", lambda p: list(iter_las(p)))):
@@ -392,7 +393,7 @@ def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path
 
 
 def test_bag_errors_stay_one_short_line() -> None:
-    from scan2terrain.readers.bag import _explain
+    from scan2terrain.readers._bag_errors import _explain
 
     text = _explain(UnicodeDecodeError("utf-8", b"x" * 5000 + b"\xff", 5000, 5001, "bad"))
     assert text.startswith("cannot read the bag: 'utf-8' codec can't decode byte 0xff")

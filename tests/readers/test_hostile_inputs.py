@@ -315,7 +315,8 @@ def _zstd_bomb(path: Path, inflated: int = 96 << 24, *, sized: bool = False) -> 
 
 def test_a_zstd_bag_bomb_is_refused_at_the_cap(own_tmp: Path, tmp_path: Path) -> None:
     """Seen: a 49 KB .mcap.zstd inflated to 1.6 GB in /tmp before it was refused."""
-    from scan2terrain.readers.bag import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET, open_bag
+    from scan2terrain.readers._bag_source import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET
+    from scan2terrain.readers.bag import open_bag
 
     bomb = _zstd_bomb(tmp_path / "bomb.mcap.zstd")
     assert bomb.stat().st_size < 60_000
@@ -388,7 +389,7 @@ def _streamed(data: bytes) -> bytes:
 _HOLD = """
 import sys, time
 from contextlib import ExitStack
-from scan2terrain.readers.bag import _temp_folder
+from scan2terrain.readers._bag_source import _temp_folder
 stack = ExitStack()
 folder = _temp_folder(stack)
 (folder / "bag.mcap").write_bytes(bytes(1000))
@@ -473,7 +474,8 @@ def test_bt_resolutions_at_the_bounds_are_read(tmp_path: Path, res: str) -> None
 def test_las_scales_and_offsets_that_make_no_sense_are_refused(
     tmp_path: Path, offset: int, value: float, message: str
 ) -> None:
-    from scan2terrain.readers.cloudfile import iter_las, las_info, read_cloud
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import iter_las, las_info
 
     data = bytearray(SIMPLE_LAS.read_bytes())
     struct.pack_into("<3d", data, 155, 0.0, 0.0, 0.0)  # simple.las has zero offsets already
@@ -889,15 +891,15 @@ def test_oversized_side_files_are_refused_unread(
 ) -> None:
     """A TUM trajectory and a rosbag2 metadata.yaml are read whole: their size is checked
     first."""
-    from scan2terrain.readers import bag, poses
+    from scan2terrain.readers import _bag_source, bag, tracks
 
     traj = tmp_path / "t.txt"
     traj.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n")
-    monkeypatch.setattr(poses, "MAX_TUM_BYTES", 16)
+    monkeypatch.setattr(tracks, "MAX_TUM_BYTES", 16)
     with pytest.raises(InputError, match="a TUM trajectory of 32 bytes, more than the 16 read"):
-        poses.read_tum(traj)
+        tracks.read_tum(traj)
     folder = tmp_path / "r"
     shutil.copytree(ZSTD_FOLDER, folder)
-    monkeypatch.setattr(bag, "MAX_METADATA_BYTES", 100)
+    monkeypatch.setattr(_bag_source, "MAX_METADATA_BYTES", 100)
     with pytest.raises(InputError, match="larger than 100 bytes: not a rosbag2 metadata file"):
         bag.open_bag(folder)

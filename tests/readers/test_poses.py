@@ -18,19 +18,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation, Slerp
 
 from scan2terrain.errors import InputError
-from scan2terrain.readers.poses import (
-    DEFAULT_MAX_GAP_NS,
-    OdometryArrays,
-    PoseTrack,
-    TfBuffer,
-    fixed_pose,
-    mount,
-    normalise_frame,
-    odometry_track,
-    read_tum,
-    rpy_matrix,
-)
-from scan2terrain.types import Transform
+from scan2terrain.readers.poses import DEFAULT_MAX_GAP_NS, fixed_pose, mount, rpy_matrix
+from scan2terrain.readers.tf import TfBuffer
+from scan2terrain.readers.tracks import OdometryArrays, PoseTrack, odometry_track, read_tum
+from scan2terrain.types import Transform, normalise_frame
 
 S = 1_000_000_000  # nanoseconds per second
 TS2 = get_typestore(Stores.ROS2_HUMBLE)

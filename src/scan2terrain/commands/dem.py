@@ -16,9 +16,7 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import GZ, Heightmap
 from scan2terrain.exporters.tiles import TiledHeightmap
-from scan2terrain.filters import (
-    median_filter,
-)
+from scan2terrain.filters.median import median_filter
 from scan2terrain.steps import (
     Terrain,
     filtering,
@@ -33,11 +31,9 @@ from scan2terrain.steps import (
 from scan2terrain.types import (
     HeightGrid,
 )
-from scan2terrain.world import (
-    Result,
-    terrain_name,
-    write_terrain,
-)
+from scan2terrain.world.folder import Result
+from scan2terrain.world.names import terrain_name
+from scan2terrain.world.terrain import write_terrain
 
 if TYPE_CHECKING:
     from scan2terrain.readers.dem import Dem

@@ -21,9 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scan2terrain.config import Config
-from scan2terrain.filters import (
-    median_filter,
-)
+from scan2terrain.filters.median import median_filter
 from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
 from scan2terrain.grids import (
     axis_align,
@@ -51,11 +49,9 @@ from scan2terrain.types import (
     Pose2D,
     Start,
 )
-from scan2terrain.world import (
-    Result,
-    walls_world,
-    write_terrain,
-)
+from scan2terrain.world.folder import Result
+from scan2terrain.world.terrain import write_terrain
+from scan2terrain.world.walls import walls_world
 
 if TYPE_CHECKING:
     pass

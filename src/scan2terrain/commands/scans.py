@@ -27,7 +27,7 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.steps import ScanProgress, grid_options, new_tree, refuse_existing
 from scan2terrain.types import OccupancyGrid, Pose2D, Scan, Start, Transform
-from scan2terrain.world import Result
+from scan2terrain.world.folder import Result
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -102,7 +102,7 @@ def bag2world(
                 data, res, (x, y, yaw) = occupancy_from_message(msg)
                 grid = OccupancyGrid(data, res, Pose2D(x, y, yaw))
             except ValueError as exc:
-                raise InputError(bag.path, f"{plan.map_topic}: {exc}") from None
+                raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
             from scan2terrain.grids import to_trinary
 
             trinary = to_trinary(
@@ -182,7 +182,7 @@ def _insert(tree: VoxelOctree, scan: Scan, source: Path) -> None:
     except InputError as exc:
         raise InputError(
             source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: {exc.problem}"
-        ) from None
+        ) from exc
 
 
 class EndpointBatch:
@@ -291,7 +291,7 @@ def cloud2world(
 
     refuse_existing(out, overwrite, tuple(files))
     grid_options(cfg)
-    from scan2terrain.readers.cloudfile import is_url, url_path
+    from scan2terrain.readers.las import is_url, url_path
 
     if streaming(cfg):
         from scan2terrain.commands import stream
@@ -315,7 +315,7 @@ def cloud2world(
             else:
                 stats = tree.insert_endpoints(pts)
         except InputError as exc:
-            raise InputError(path, exc.problem) from None
+            raise InputError(path, exc.problem) from exc
         if stats.out_of_range:
             outside[Path(path)] = stats.out_of_range
     keys, occupied = tree.occupied_and_free()

@@ -38,7 +38,7 @@ from scan2terrain.grids.tiles import Lattice, TileSet
 if TYPE_CHECKING:
     from scan2terrain.readers.scans import BagPlan
     from scan2terrain.types import Start
-    from scan2terrain.world import Result
+    from scan2terrain.world.folder import Result
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
 #: file, or several small files (fewer, larger results to send back and merge).
@@ -122,14 +122,8 @@ def plan_clouds(
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
-    from scan2terrain.readers.cloudfile import (
-        LAS_SUFFIXES,
-        is_url,
-        las_info,
-        read_cloud,
-        url_path,
-        url_suffix,
-    )
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import LAS_SUFFIXES, is_url, las_info, url_path, url_suffix
     from scan2terrain.readers.points import local_origin
 
     st = cfg.stream
@@ -264,7 +258,8 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
     if isinstance(chunk, BagChunk):
         yield from _bag_points(chunk, job)
         return
-    from scan2terrain.readers.cloudfile import LAS_SUFFIXES, iter_las, read_cloud, url_suffix
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import LAS_SUFFIXES, iter_las, url_suffix
 
     origin = np.array(job.origin)
     if url_suffix(chunk.path) in LAS_SUFFIXES:
@@ -357,7 +352,7 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
             except OSError as exc:
                 raise ConfigError(
                     f"stream.scheduler {st.scheduler}: cannot connect ({exc})"
-                ) from None
+                ) from exc
         else:
             cluster = stack.enter_context(
                 LocalCluster(

@@ -23,9 +23,7 @@ from scan2terrain.steps import (
 from scan2terrain.types import (
     Start,
 )
-from scan2terrain.world import (
-    Result,
-)
+from scan2terrain.world.folder import Result
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -68,7 +66,7 @@ def octree2world(
         try:
             keys, occupied, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
         except ValueError as exc:
-            raise InputError(source, f"{exc}: too large to project") from None
+            raise InputError(source, f"{exc}: too large to project") from exc
         resolution = bt.resolution
     return voxels_world(
         keys,
@@ -172,7 +170,7 @@ def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None
         try:
             tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
         except InputError as exc:
-            raise InputError(source, exc.problem) from None
+            raise InputError(source, exc.problem) from exc
         counts.messages += 1
         counts.inserted += 1
         counts.points += len(scan.points)

@@ -72,7 +72,7 @@ class OutputDir:
             self._remove_made()
             raise OutputError(
                 f"{self.target}: cannot create the output folder ({exc.strerror or exc})"
-            ) from None
+            ) from exc
         self.files: list[Path] = []
 
     @staticmethod
@@ -96,7 +96,7 @@ class OutputDir:
         except OSError as exc:
             raise OutputError(
                 f"{self.target}: cannot write {relative} ({exc.strerror or exc})"
-            ) from None
+            ) from exc
         self.files.append(Path(relative))
         return self.target / relative
 
@@ -121,7 +121,7 @@ class OutputDir:
         except OSError as exc:
             raise OutputError(
                 f"{self.target}: cannot write the output folder ({exc.strerror or exc})"
-            ) from None
+            ) from exc
         # After an exchange the old folder is at self.tmp; discard() removes it.
 
     def _replace_aside(self) -> None:

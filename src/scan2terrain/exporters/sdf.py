@@ -450,7 +450,7 @@ def gz_polyline_points(
     list of lists of float64 arrays, each shape (N, 2)
         The same structure, moved.
     """
-    from scan2terrain.geometry.mesh import splitmix64
+    from scan2terrain.geometry.caps import splitmix64
 
     rings = [np.asarray(r, dtype=np.float64).reshape(-1, 2) for poly in polygons for r in poly]
     if not rings:

@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.config import UNKNOWN_POLICIES, UnknownPolicy
 from scan2terrain.types import OCCUPIED, UNKNOWN
 
-POLICIES = ("free", "obstacle", "height")
 
-
-def unknown_level(policy: str, *, wall_height: float, unknown_height: float) -> float:
+def unknown_level(policy: UnknownPolicy, *, wall_height: float, unknown_height: float) -> float:
     """The height in metres an unknown cell gets under ``policy``."""
     if policy == "free":
         return 0.0
@@ -18,14 +17,14 @@ def unknown_level(policy: str, *, wall_height: float, unknown_height: float) -> 
         return wall_height
     if policy == "height":
         return unknown_height
-    raise ValueError(f"policy must be one of {POLICIES}, got {policy!r}")
+    raise ValueError(f"policy must be one of {UNKNOWN_POLICIES}, got {policy!r}")
 
 
 def occupancy_to_heights(
     trinary: NDArray[np.int8],
     *,
     wall_height: float,
-    policy: str = "free",
+    policy: UnknownPolicy = "free",
     unknown_height: float = 0.0,
 ) -> NDArray[np.float32]:
     """Trinary occupancy (-1/0/100) to ground heights in metres: free 0, occupied ``wall_height``,

@@ -1,6 +1,6 @@
 # numba kernels take their arrays and scalars positionally (as octree/_kernels.py does).
 # ruff: noqa: PLR0917
-"""Compiled loops of outline simplification (numba), imported only by ``outlines.simplify``.
+"""Compiled loops of outline simplification (numba), imported only by ``simplify.py``.
 
 Coordinates are in half cells of the grid (``2 * grid units``), so every outline point (cell
 corner or cell-edge midpoint) has integer coordinates and every cell centre odd ones; all

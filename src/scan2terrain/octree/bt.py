@@ -179,7 +179,7 @@ def read_bt(path: Path) -> BtTree:
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except OSError as exc:
-        raise InputError(path, f"cannot read the file ({exc.strerror or exc})") from None
+        raise InputError(path, f"cannot read the file ({exc.strerror or exc})") from exc
     tree_type, size, resolution, start = _parse_header(path, buf)
     if tree_type not in ("OcTree", "1"):  # OctoMap reads the deprecated id "1" as OcTree
         raise InputError(

@@ -3,7 +3,7 @@
 Voxels are keyed like OctoMap's depth-16 leaves (16 bits per axis, ``key = floor(x / res) + 32768``)
 and stored in dense 8 x 8 x 8 blocks behind a hash of block coordinates: a leaf is a float32
 log-odds, NaN when unknown. End points only (``insert_endpoints``) keep blocks with few voxels in
-a sparse store instead, a voxel-level hash (see _kernels.py); every query reads both. Inner nodes
+a sparse store instead, a voxel-level hash (see _sparse.py); every query reads both. Inner nodes
 are not stored; a coarser depth is computed on demand as the maximum of its known voxels, which is
 what OctoMap's inner nodes hold. OctoMap's pruning is lossless (it merges 8 equal children), so
 the voxel values here equal OctoMap's leaf values.
@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.octree import _group, _points, _raycast, _sparse, _table
 from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
@@ -106,14 +107,14 @@ class VoxelOctree:
         self._bits = np.zeros((1024, 8 * (1 + threads)), dtype=np.uint64)
         self._block_xyz = np.zeros((1024, 3), dtype=np.int32)
         self._stamp = np.full(1024, -1, dtype=np.int64)
-        self._table_keys = np.full(4096, K.EMPTY, dtype=np.int64)
+        self._table_keys = np.full(4096, _table.EMPTY, dtype=np.int64)
         self._table_slots = np.zeros(4096, dtype=np.int32)
-        self._counts = np.zeros(3, dtype=np.int64)  # see _kernels.N_BLOCKS, N_TOUCHED, STAMP
+        self._counts = np.zeros(3, dtype=np.int64)  # see _table.N_BLOCKS, N_TOUCHED, STAMP
         self._touched = np.zeros(1024, dtype=np.int64)
         # The sparse store (end points only): voxel and block tables, (voxels, blocks) per region.
-        self._vt = np.zeros(16 * K.NREG, dtype=np.int64)
-        self._st = np.zeros(16 * K.NREG, dtype=np.int64)
-        self._sparse_counts = np.zeros((K.NREG, 2), dtype=np.int64)
+        self._vt = np.zeros(16 * _sparse.NREG, dtype=np.int64)
+        self._st = np.zeros(16 * _sparse.NREG, dtype=np.int64)
+        self._sparse_counts = np.zeros((_sparse.NREG, 2), dtype=np.int64)
         self._lut, self._max_hits = self._hit_values()
         # Without a saturating hit count that fits the voxel table (a model needing more than
         # 255 hits to reach clamp_max), every block is dense.
@@ -155,7 +156,7 @@ class VoxelOctree:
         if o.shape != (3,) or not np.isfinite(o).all():
             raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
         o32 = o.astype(np.float32)
-        if not all(K.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32):
+        if not all(_table.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32):
             half = KEY_OFFSET * self.resolution
             raise InputError(
                 None,
@@ -163,19 +164,23 @@ class VoxelOctree:
                 f"(+-{half:g} m at {self.resolution} m)",
             )
         res = self.resolution
-        ends, kind, stats = K.scan_rays(pts, o32, float(max_range), res)
+        ends, kind, stats = _raycast.scan_rays(pts, o32, float(max_range), res)
         self._next_scan()
         first_new = self.n_blocks
         dense, box = self._scan_box(o32, ends)
         k = self._kernels(len(pts))
         k.flag_blocks(o32, ends, kind, res, dense, box)
-        self._until_done(lambda i: K.alloc_flagged(dense, box, i, *self._storage()))
-        self._until_done(lambda i: K.mark_hits(ends, kind, res, dense, box, i, *self._storage()))
+        self._until_done(lambda i: _raycast.alloc_flagged(dense, box, i, *self._storage()))
+        self._until_done(
+            lambda i: _raycast.mark_hits(ends, kind, res, dense, box, i, *self._storage())
+        )
         deferred = k.cast_parallel(
             o32, ends, kind, res, self._planes(k), dense, box, *self._storage()
         )
         self._until_done(
-            lambda i: K.cast_serial(o32, ends, deferred, i, res, dense, box, *self._storage())
+            lambda i: _raycast.cast_serial(
+                o32, ends, deferred, i, res, dense, box, *self._storage()
+            )
         )
         self._fresh_blocks(first_new)
         self._adopt(np.arange(first_new, self.n_blocks))
@@ -189,9 +194,9 @@ class VoxelOctree:
         ray ends, one block of margin. Above MAX_DENSE entries (very long beams at a fine
         resolution) it covers the blocks nearest the origin only; rays leaving it take the
         serial path."""
-        bounds = K.block_bounds(origin, ends, self.resolution)
+        bounds = _raycast.block_bounds(origin, ends, self.resolution)
         lo, hi = bounds[0] - 1, bounds[1] + 1
-        ob = K.block_bounds(origin, ends[:0], self.resolution)[0]
+        ob = _raycast.block_bounds(origin, ends[:0], self.resolution)[0]
         ext = hi - lo + 1
         while int(np.prod(ext)) > MAX_DENSE:  # shrink around the origin's block
             lo = np.maximum(lo, ob - ext // 4)
@@ -216,23 +221,23 @@ class VoxelOctree:
         # Each chunk's points go after the earlier chunks' of the same partition (or of the
         # dense store); partitions one after the other.
         totals = hist.sum(axis=0)
-        starts = np.zeros(K.NPART + 1, dtype=np.int64)
-        np.cumsum(totals[: K.NPART], out=starts[1:])
-        offsets = np.cumsum(hist[:, : K.NPART + 1], axis=0) - hist[:, : K.NPART + 1]
-        offsets[:, : K.NPART] += starts[:-1]
+        starts = np.zeros(_sparse.NPART + 1, dtype=np.int64)
+        np.cumsum(totals[: _sparse.NPART], out=starts[1:])
+        offsets = np.cumsum(hist[:, : _sparse.NPART + 1], axis=0) - hist[:, : _sparse.NPART + 1]
+        offsets[:, : _sparse.NPART] += starts[:-1]
         new = np.empty(int(starts[-1]), dtype=np.int64)
-        dense = np.empty(int(totals[K.NPART]), dtype=np.int64)
+        dense = np.empty(int(totals[_sparse.NPART]), dtype=np.int64)
         k.place_points(pts, self.resolution, cls, offsets, new, dense)
         del cls
         if len(dense):
             self._until_done(
-                lambda i: K.touch_points(dense, i, self._stamp, self._counts, self._touched)
+                lambda i: _points.touch_points(dense, i, self._stamp, self._counts, self._touched)
             )
         sparse_hits = self._insert_new(k, new, starts) if len(new) else 0
         if len(dense):
             k.mark_point_bits(dense, self._planes(k), self._bits)
         hits, misses = self._apply(k, all_hits=True)
-        outside, dropped = int(totals[K.NPART + 1]), int(totals[K.NPART + 2])
+        outside, dropped = int(totals[_sparse.NPART + 1]), int(totals[_sparse.NPART + 2])
         return InsertStats(len(pts), dropped, outside, 0, hits + sparse_hits, misses)
 
     def _insert_new(self, k: K.Kernels, new: NDArray[np.int64], seg: NDArray[np.int64]) -> int:
@@ -246,8 +251,8 @@ class VoxelOctree:
         sparse_hits = int(runs[:, 3].sum())
         ends = np.ascontiguousarray(written[:, 0])  # where the runs going dense end
         if runs[:, 0].any():  # blocks left for want of room: grow the tables, then hit them
-            self._vt = self._fit(k, vt, counts[:, 0] + runs[:, 0], K.KEY_MASK)
-            self._st = self._fit(k, st, counts[:, 1] + runs[:, 1], K.BLOCK_MASK)
+            self._vt = self._fit(k, vt, counts[:, 0] + runs[:, 0], _sparse.KEY_MASK)
+            self._st = self._fit(k, st, counts[:, 1] + runs[:, 1], _sparse.BLOCK_MASK)
             hits = k.upsert_sparse(
                 new, seg, written, self._vt, self._st, counts, self._dense_min, self._max_hits
             )
@@ -257,7 +262,7 @@ class VoxelOctree:
         adopt = np.empty(int(runs[:, 1:3].sum()), dtype=np.int64)  # dense + promoted runs
         n_adopt = np.zeros(1, dtype=np.int64)
         self._until_done(
-            lambda i: K.alloc_dense_runs(new, seg, ends, i, adopt, n_adopt, *self._storage())
+            lambda i: _group.alloc_dense_runs(new, seg, ends, i, adopt, n_adopt, *self._storage())
         )
         self._fresh_blocks(first_new)
         self._adopt(adopt[: int(n_adopt[0])])
@@ -268,20 +273,20 @@ class VoxelOctree:
         k: K.Kernels, table: NDArray[np.int64], need: NDArray[np.int64], kmask: np.int64
     ) -> NDArray[np.int64]:
         """``table``, or a rehashed larger copy, with room for ``need`` entries per region."""
-        size = size0 = len(table) >> K.NREG_BITS
-        while int(need.max()) > K.SPARSE_LOAD * size:
+        size = size0 = len(table) >> _sparse.NREG_BITS
+        while int(need.max()) > _sparse.SPARSE_LOAD * size:
             size *= 2
         if size == size0:
             return table
         # np.zeros maps its pages lazily: the table is not written twice
-        out = np.zeros(size << K.NREG_BITS, dtype=np.int64)
+        out = np.zeros(size << _sparse.NREG_BITS, dtype=np.int64)
         k.sparse_rehash(table, kmask, out)
         return out
 
     def _adopt(self, slots: NDArray[np.int64]) -> None:
         """New dense blocks ``slots`` (values NaN) take over their voxels from the sparse store."""
         if len(slots) and self._sparse_counts[:, 0].any():
-            K.adopt_sparse(
+            _sparse.adopt_sparse(
                 slots,
                 self._values,
                 self._block_xyz,
@@ -304,15 +309,15 @@ class VoxelOctree:
         )
 
     def _next_scan(self) -> int:
-        self._counts[K.STAMP] += 1
-        return int(self._counts[K.STAMP])
+        self._counts[_table.STAMP] += 1
+        return int(self._counts[_table.STAMP])
 
     def _until_done(self, call: Callable[[int], tuple[int, int]]) -> None:
         """Run a resumable kernel to completion, growing the storage when it stops for room."""
         start = 0
         while True:
             start, status = call(start)
-            if status == K.DONE:
+            if status == _table.DONE:
                 return
             self._grow(status)
 
@@ -336,11 +341,11 @@ class VoxelOctree:
             self._values,
             self._bits,
             self._touched,
-            int(self._counts[K.N_TOUCHED]),
+            int(self._counts[_table.N_TOUCHED]),
             self._model,
             all_hits,
         )
-        self._counts[K.N_TOUCHED] = 0
+        self._counts[_table.N_TOUCHED] = 0
         return int(hits), int(misses)
 
     def _points(self, points: NDArray[np.floating]) -> tuple[NDArray[np.float32], int]:
@@ -362,8 +367,8 @@ class VoxelOctree:
     def _grow(self, status: int) -> None:
         """Make room for the insertion kernels: more blocks, a longer list of blocks touched
         by the scan, or a larger hash table (kept at most half full)."""
-        n_blocks = int(self._counts[K.N_BLOCKS])
-        if status == K.NEED_BLOCKS:
+        n_blocks = int(self._counts[_table.N_BLOCKS])
+        if status == _table.NEED_BLOCKS:
             new = max(2 * len(self._bits), n_blocks + 4096)
             # Fresh arrays, only the used rows copied: the tail stays untouched virtual memory
             # (np.empty / np.zeros map pages lazily). A block's values are set to NaN when it is
@@ -381,14 +386,14 @@ class VoxelOctree:
             stamp = np.full(new, -1, dtype=np.int64)
             stamp[:n_blocks] = self._stamp[:n_blocks]
             self._stamp = stamp
-        elif status == K.NEED_TOUCHED:
-            n = int(self._counts[K.N_TOUCHED])
+        elif status == _table.NEED_TOUCHED:
+            n = int(self._counts[_table.N_TOUCHED])
             touched = np.empty(2 * len(self._touched), dtype=np.int64)
             touched[:n] = self._touched[:n]
             self._touched = touched
-        elif status == K.NEED_TABLE:
+        elif status == _table.NEED_TABLE:
             cap = 1 << max(12, (4 * len(self._bits) - 1).bit_length())
-            self._table_keys, self._table_slots = K.rehash(self._block_xyz, n_blocks, cap)
+            self._table_keys, self._table_slots = _table.rehash(self._block_xyz, n_blocks, cap)
 
     # --- queries --------------------------------------------------------------------------
 
@@ -425,7 +430,7 @@ class VoxelOctree:
 
     @property
     def n_blocks(self) -> int:
-        return int(self._counts[K.N_BLOCKS])
+        return int(self._counts[_table.N_BLOCKS])
 
     def logodds_at(self, points: NDArray[np.floating]) -> NDArray[np.float32]:
         """Log-odds of the voxels holding ``points`` (metres, (N, 3)); NaN where unknown."""
@@ -434,7 +439,9 @@ class VoxelOctree:
     def logodds_at_keys(self, keys: NDArray[np.integer]) -> NDArray[np.float32]:
         k = np.ascontiguousarray(np.atleast_2d(keys), dtype=np.int64)
         return np.asarray(
-            K.lookup(k, self._values, self._table_keys, self._table_slots, self._vt, self._lut)
+            _sparse.lookup(
+                k, self._values, self._table_keys, self._table_slots, self._vt, self._lut
+            )
         )
 
     def is_occupied(self, logodds: NDArray[np.float32]) -> NDArray[np.bool_]:
@@ -451,7 +458,7 @@ class VoxelOctree:
         lo = vals[slot, local]
         if self.n_sparse == 0:
             return keys, lo
-        skeys, slo = K.sparse_voxels(self._vt, self._lut, self.n_sparse)
+        skeys, slo = _sparse.sparse_voxels(self._vt, self._lut, self.n_sparse)
         return np.concatenate([keys, skeys]), np.concatenate([lo, slo])
 
     def occupied_and_free(self) -> tuple[NDArray[np.uint16], NDArray[np.bool_]]:
@@ -509,10 +516,10 @@ class VoxelOctree:
         if k.shape != (len(v), 3):
             raise ValueError("keys must be (N, 3) and logodds (N,)")
         while len(self._bits) < self.n_blocks + len(k):
-            self._grow(K.NEED_BLOCKS)
+            self._grow(_table.NEED_BLOCKS)
         if len(self._table_keys) < 2 * len(self._bits):
-            self._grow(K.NEED_TABLE)
-        K.set_values(
+            self._grow(_table.NEED_TABLE)
+        _sparse.set_values(
             k,
             v,
             self._values,

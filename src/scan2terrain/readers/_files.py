@@ -65,7 +65,7 @@ def regular_file(path: Path | str, what: str, *, missing: str | None = None) -> 
     except FileNotFoundError:
         raise InputError(path, missing or f"{what} not found") from None
     except OSError as exc:  # ELOOP, ENAMETOOLONG, ENOTDIR, EACCES
-        raise InputError(path, f"cannot open the {what} ({exc.strerror or exc})") from None
+        raise InputError(path, f"cannot open the {what} ({exc.strerror or exc})") from exc
     except ValueError:  # os.stat refuses a NUL byte in a path
         raise InputError(path, f"the {what}'s name holds a NUL byte") from None
     kind = file_kind(st.st_mode)

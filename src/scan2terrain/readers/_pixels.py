@@ -84,18 +84,18 @@ def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
     except UnidentifiedImageError:
         raise InputError(path, "not an image file Pillow can read") from None
     except Image.DecompressionBombError as exc:
-        raise InputError(path, f"image rejected as a decompression bomb ({exc})") from None
+        raise InputError(path, f"image rejected as a decompression bomb ({exc})") from exc
     except (OSError, SyntaxError, ValueError) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(path, f"cannot decode image (truncated or corrupt?): {exc}") from None
+        raise InputError(path, f"cannot decode image (truncated or corrupt?): {exc}") from exc
     except Exception as exc:  # whatever else Pillow's code meets in a corrupt file
         if not raised_in(exc, ("PIL",)):
             raise
         text = " ".join(str(exc).split())[:200]
         raise InputError(
             path, f"cannot decode image (corrupt?): {type(exc).__name__}: {text}"
-        ) from None
+        ) from exc
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -1,44 +1,18 @@
 """ROS bags in, deserialised messages out: ROS1 ``.bag`` files and rosbag2 recordings, no ROS.
 
 Everything is read through :class:`rosbags.highlevel.AnyReader`, with ROS 2 Humble's message
-definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choices:
+definitions as the fallback for bags that carry none (old sqlite3 rosbag2). This module is the
+API: :func:`open_bag`, :class:`Bag` (topics, time span, messages) and :func:`resolve_time`. What
+a path may name and how it is handed to rosbags (format sniffing, only regular files, capped zstd
+decompression, temporary folders) is in :mod:`scan2terrain.readers._bag_source`; the wording of
+rosbags' failures and the defects of old ROS1 bags that are read anyway (broken chunk indexes,
+``roslib/Header``) in :mod:`scan2terrain.readers._bag_errors`. Choices:
 
-* **What can be opened.** A ROS1 ``.bag`` file; several ``.bag`` files of one split recording
-  (a list of paths, or a folder of ``.bag`` files); a rosbag2 folder (``metadata.yaml``
-  plus ``.db3``/``.mcap``, also with ``compression_mode: FILE`` zstd, which rosbags decompresses
-  itself); a standalone ``.db3`` or ``.mcap`` file without ``metadata.yaml``; a standalone
-  zstd-compressed ``.mcap.zstd``/``.db3.zstd`` file, decompressed here into a temporary folder
-  (with the ``zstd`` module rosbags itself depends on, so no extra dependency). The format is
-  sniffed from the first bytes, not the suffix, so errors can say what a file really is; a bag
-  with the wrong suffix is opened through a temporary symlink because rosbags dispatches on
-  the suffix.
-* **Only regular files are opened** (:func:`~scan2terrain.readers._files.regular_file`): a named
-  pipe given as a bag, or as the storage file of a rosbag2 folder, waited for a writer forever.
-* **Decompression is capped.** A whole-file zstd bag (standalone, or each file of a rosbag2
-  folder with ``compression_mode: FILE``, which rosbags would decompress without a limit) is
-  decompressed here, streamed, to at most :data:`MAX_ZSTD_RATIO` times its size (at least
-  :data:`MIN_ZSTD_BUDGET`): a 49 KB file inflated to 1.6 GB. A frame that states its size is
-  refused before anything is written.
-* **Temporary folders** (``.s2t-bag-*.part`` in the system's temporary folder) are held under
-  an exclusive ``flock`` while they live, and removed when the bag is closed; those of killed
-  runs, which nobody holds, are removed by the next bag read (the rule and the code of
-  :mod:`scan2terrain.exporters.output`'s output folders).
 * **Errors.** Every failure is one :class:`~scan2terrain.errors.InputError` naming the file:
   missing, not a bag, the pre-2010 ``#ROSRECORD V1.2`` format, a truncated or damaged file
   (rosbags raises many exception types, some only while iterating, so iteration is wrapped
   too), a topic that does not exist (the message lists the ones there are), a time range without
   messages (:meth:`Bag.require_messages`).
-* **Broken ROS1 indexes are rebuilt.** Some old rosbag writers (e.g. the 2010 CCNY demo bag)
-  wrote ``IDXDATA`` records whose declared length does not match their entries; rosbags then
-  fails with a bare ``AssertionError``. The per-chunk index only says where each message sits in
-  its chunk, so when rosbags rejects it, :class:`_Ros1Reader` walks that chunk's records
-  instead (a few dozen lines, the layout rosbags' own reader parses) and a :class:`BagWarning`
-  says so. Bags whose *file-level* index is missing (a killed recording, a truncated copy) are
-  refused with the ROS1 fix (``rosbag reindex``): rebuilding the chunk list as well would be a
-  reimplementation of ``rosbag reindex``.
-* **Old ROS1 definitions.** Bags from ROS C-Turtle (2010) define ``Header`` as
-  ``roslib/Header``; rosbags resolves ``Header`` to ``std_msgs/Header`` and fails. The
-  definition text is renamed when it is read (same fields, same MD5).
 * **Unknown message types** (no definition in the bag nor in ROS 2 Humble, e.g. a custom type
   in a schema-less sqlite3 bag) never stop the run: such topics are listed in
   :attr:`Bag.skipped` with the reason, and *one* :class:`BagWarning` (a ``UserWarning``) is
@@ -56,11 +30,6 @@ definitions as the fallback for bags that carry none (old sqlite3 rosbag2). Choi
 
 from __future__ import annotations
 
-import codecs
-import os
-import shutil
-import sys
-import tempfile
 import warnings
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
@@ -68,32 +37,27 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from functools import lru_cache
-from io import BytesIO
-from pathlib import Path, PurePath
+from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, cast
 
 from rosbags.highlevel import AnyReader
-from rosbags.interfaces import Connection, MessageDefinition
-from rosbags.rosbag1 import Reader as _RosbagsReader1
-from rosbags.rosbag1.reader import Header as _Ros1Header
-from rosbags.rosbag1.reader import IndexData as _IndexData
-from rosbags.rosbag1.reader import RecordType as _Ros1Record
-from rosbags.rosbag1.reader import read_bytes as _read_bytes
-from rosbags.rosbag1.reader import read_uint32 as _read_uint32
+from rosbags.interfaces import Connection
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
-from scan2terrain.readers._files import regular_file
+from scan2terrain.readers._bag_errors import (
+    _culprit,
+    _explain,
+    _one_line,
+    _Ros1Reader,
+    _undecodable,
+)
+from scan2terrain.readers._bag_source import _Source, _source
 from scan2terrain.types import normalise_frame
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
-
-if sys.version_info >= (3, 14):  # pragma: no cover
-    from compression import zstd
-else:
-    from backports import zstd
 
 __all__ = [
     "LASER_SCAN",
@@ -125,26 +89,6 @@ SCAN_TYPES = frozenset({LASER_SCAN, POINT_CLOUD2})
 #: Values at or above this many seconds are absolute UNIX times in :func:`resolve_time`.
 ABSOLUTE_TIME_S = 1e9
 
-_MAGIC_ROS1 = b"#ROSBAG V2.0"
-_MAGIC_ROSRECORD = b"#ROSRECORD"
-_MAGIC_SQLITE = b"SQLite format 3\x00"
-_MAGIC_MCAP = b"\x89MCAP0\r\n"
-_MAGIC_ZSTD = b"\x28\xb5\x2f\xfd"
-_STORAGE_SUFFIX = {"sqlite3": ".db3", "mcap": ".mcap"}
-_STORAGE_NAMES = (".db3", ".mcap", ".db3.zstd", ".mcap.zstd")
-#: A zstd bag is decompressed to at most this many times its size (and at least
-#: :data:`MIN_ZSTD_BUDGET` bytes). Recordings compress 2 to 10 times; the nav2 fixture, mostly
-#: an empty costmap, 120 times. A trusted file beyond it can be decompressed with ``zstd -d``.
-MAX_ZSTD_RATIO = 200
-MIN_ZSTD_BUDGET = 64 << 20
-#: A rosbag2 ``metadata.yaml`` lists topics and files: kilobytes.
-MAX_METADATA_BYTES = 16 << 20
-_LEGACY_HINT = (
-    "this is the pre-2010 '#ROSRECORD V1.2' bag format, which only ROS1's own rosbag reads; "
-    "convert it in ROS1 with 'rosbag reindex old.bag' (rewrites it as V2.0, keeping "
-    "old.orig.bag) or 'rosbag fix old.bag new.bag'"
-)
-
 
 class BagWarning(UserWarning):
     """A bag was read, but not all of it: skipped topics, a rebuilt index."""
@@ -173,346 +117,6 @@ class TopicInfo:
 @lru_cache(maxsize=1)
 def _default_typestore() -> Typestore:
     return get_typestore(Stores.ROS2_HUMBLE)
-
-
-# --- ROS1: the rosbags reader, with an index rebuilt from the chunks where it is broken -----------
-
-
-class _Ros1Reader(_RosbagsReader1):
-    """rosbags' ROS1 reader that survives two defects of old bags.
-
-    * ``IDXDATA`` records that rosbags rejects (an ``AssertionError`` from its fast parser): the
-      entries for that chunk are rebuilt by walking the chunk's records (each is ``uint32``
-      header length, header fields ``name=value``, ``uint32`` data length, data; messages are
-      ``op=2`` with ``conn`` and ``time``), exactly what the index would have said.
-    * ``roslib/Header`` in message definitions (ROS C-Turtle) is renamed ``std_msgs/Header``.
-    """
-
-    def __init__(self, path: Path) -> None:
-        super().__init__(path)
-        self.rebuilt_chunks: set[int] = set()
-
-    def read_connection(self) -> Connection:
-        conn = super().read_connection()
-        text = conn.msgdef.data
-        if "\nMSG: roslib/Header\n" in text:
-            text = text.replace("\nMSG: roslib/Header\n", "\nMSG: std_msgs/Header\n")
-            conn = conn._replace(msgdef=MessageDefinition(conn.msgdef.format, text))
-        return conn
-
-    def read_index_data(self, pos: int, indexes: dict[int, list[_IndexData]]) -> None:
-        if pos in self.rebuilt_chunks:
-            return  # the walk already indexed every message of this chunk
-        try:
-            super().read_index_data(pos, indexes)
-        except AssertionError:
-            self._walk_chunk(pos, indexes)
-
-    def _walk_chunk(self, pos: int, indexes: dict[int, list[_IndexData]]) -> None:
-        assert self.bio is not None  # only called from open()
-        self.rebuilt_chunks.add(pos)
-        for conn_entries in indexes.values():  # drop entries of this chunk read before the error
-            conn_entries[:] = [e for e in conn_entries if e.chunk_pos != pos]
-        chunk = self.chunks[pos]
-        self.bio.seek(chunk.datapos)
-        data = chunk.decompressor(_read_bytes(self.bio, chunk.datasize))
-        src = BytesIO(data)
-        while src.tell() < len(data):
-            offset = src.tell()
-            header = _Ros1Header.read(src)
-            size = _read_uint32(src)
-            if header.get_uint8("op") == _Ros1Record.MSGDATA:
-                entry = _IndexData(header.get_time("time"), pos, offset)
-                indexes[header.get_uint32("conn")].append(entry)
-            src.seek(size, os.SEEK_CUR)
-
-
-# --- finding out what a path is -------------------------------------------------------------------
-
-
-def _sniff(path: Path) -> str:
-    """The format of a file from its first bytes: ros1, rosrecord, sqlite3, mcap, zstd, ..."""
-    with path.open("rb") as f:
-        head = f.read(256)
-    if not head:
-        return "empty"
-    for kind, magic in (
-        ("ros1", _MAGIC_ROS1),
-        ("rosrecord", _MAGIC_ROSRECORD),
-        ("sqlite3", _MAGIC_SQLITE),
-        ("mcap", _MAGIC_MCAP),
-        ("zstd", _MAGIC_ZSTD),
-    ):
-        if head.startswith(magic):
-            return kind
-    if head.startswith(b"#ROSBAG"):
-        return "ros1-other"
-    printable = all(b >= 0x20 or b in b"\t\n\r\f" for b in head)
-    try:
-        codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
-    except UnicodeDecodeError:
-        return "unknown"
-    return "text" if printable else "unknown"
-
-
-def _not_a_bag(path: Path, kind: str) -> InputError:
-    if kind == "empty":
-        return InputError(path, "the file is empty, not a bag")
-    if kind == "rosrecord":
-        return InputError(path, _LEGACY_HINT)
-    if kind == "ros1-other":
-        return InputError(path, "unsupported ROS1 bag version (only '#ROSBAG V2.0' is read)")
-    if kind == "text":
-        hint = (
-            "; for a rosbag2 recording pass the folder that holds metadata.yaml"
-            if path.suffix in {".yaml", ".yml"}
-            else ""
-        )
-        return InputError(path, f"this is a text file, not a ROS bag{hint}")
-    return InputError(
-        path,
-        "not a ROS bag (expected a ROS1 .bag, a rosbag2 folder, or a .db3 / .mcap file)",
-    )
-
-
-@dataclass(frozen=True)
-class _Source:
-    """What to hand to AnyReader, and which path to name in messages."""
-
-    paths: tuple[Path, ...]  # as given by the user (named in errors)
-    read: tuple[Path, ...]  # what rosbags opens (staged copies or symlinks where needed)
-
-
-def _temp_folder(stack: ExitStack) -> Path:
-    """A new folder in the system's temporary folder, removed when ``stack`` closes.
-
-    It holds an exclusive flock while it lives, so the next bag read can tell the folder of a
-    killed run from a live one's and remove it (:func:`scan2terrain.fileio.sweep`,
-    under a short lock on the temporary folder, as for output folders).
-    """
-    # Lazy: the output module is a later stage's, shared here as fileio shares it.
-    from scan2terrain.fileio import TMP_PREFIX, locked, sweep, try_lock
-
-    parent = Path(tempfile.gettempdir())
-    try:
-        with locked(parent):
-            sweep(parent)
-            folder = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}bag-", suffix=".part", dir=parent))
-            lock = try_lock(folder)
-    except OSError as exc:
-        raise InputError(
-            None, f"cannot make a temporary folder in {parent} ({exc.strerror or exc})"
-        ) from None
-    if lock is not None:
-        stack.callback(os.close, lock)
-    stack.callback(shutil.rmtree, folder, ignore_errors=True)  # first, then the lock goes
-    return folder
-
-
-def _stage(path: Path, kind: str, stack: ExitStack) -> Path:
-    """A path rosbags will accept for a file of this kind (it dispatches on the suffix)."""
-    want = ".bag" if kind == "ros1" else _STORAGE_SUFFIX[kind]
-    if path.suffix == want:
-        return path
-    link = _temp_folder(stack) / (path.stem + want)
-    link.symlink_to(path.resolve())
-    return link
-
-
-def _too_big(limit: int, size: int) -> str:
-    return (
-        f"more than {limit:,} bytes, {MAX_ZSTD_RATIO} times its {size:,} (at least "
-        f"{MIN_ZSTD_BUDGET:,}: MAX_ZSTD_RATIO in scan2terrain.readers.bag): a zstd bomb? If the "
-        "file is trusted, decompress it with 'zstd -d' and give the result"
-    )
-
-
-def _inflate(path: Path, out: Path) -> None:
-    """Decompress the zstd file ``path`` into ``out``, streamed, refusing (before writing
-    anything, when its first frame states its size) more than the budget."""
-    size = path.stat().st_size
-    limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * size)
-    try:
-        with path.open("rb") as raw:
-            try:
-                declared = zstd.get_frame_info(raw.read(18)).decompressed_size
-            except zstd.ZstdError:  # no frame header: decompression says what is wrong
-                declared = None
-            if declared is not None and declared > limit:
-                raise InputError(
-                    path, f"its zstd frame holds {declared:,} bytes, {_too_big(limit, size)}"
-                )
-            raw.seek(0)
-            total = 0
-            with zstd.open(raw, "rb") as src, out.open("wb") as dst:
-                while chunk := src.read(1 << 20):
-                    total += len(chunk)
-                    if total > limit:
-                        raise InputError(path, f"decompresses to {_too_big(limit, size)}")
-                    dst.write(chunk)
-    except (OSError, zstd.ZstdError, EOFError) as exc:
-        raise InputError(path, f"cannot decompress this zstd file ({exc})") from None
-    except InputError:
-        out.unlink(missing_ok=True)  # now: the folder goes only when the bag is closed
-        raise
-
-
-def _decompress(path: Path, stack: ExitStack) -> Path:
-    """Decompress a whole-file zstd bag (``.mcap.zstd``) into a temporary file."""
-    out = _temp_folder(stack) / "bag"
-    _inflate(path, out)
-    kind = _sniff(out)
-    if kind not in _STORAGE_SUFFIX:
-        raise InputError(path, "a zstd file that does not hold a .mcap or .db3 bag")
-    return out.rename(out.with_suffix(_STORAGE_SUFFIX[kind]))
-
-
-def _metadata(folder: Path) -> dict[str, Any] | None:
-    """The ``rosbag2_bagfile_information`` of a rosbag2 folder, with ``relative_file_paths``
-    as plain names; None when it is not in order (rosbags then reads it and says what is
-    wrong)."""
-    import yaml
-
-    errors = (OSError, UnicodeError, yaml.YAMLError, RecursionError, ValueError, KeyError)
-    try:
-        doc = yaml.safe_load((folder / "metadata.yaml").read_text(encoding="utf-8"))
-        info = dict(doc["rosbag2_bagfile_information"])
-        info["relative_file_paths"] = [PurePath(str(x)).name for x in info["relative_file_paths"]]
-    except (*errors, TypeError, AttributeError):
-        return None
-    return info
-
-
-def _unpack_file_mode(folder: Path, info: dict[str, Any], stack: ExitStack) -> Path | None:
-    """For a rosbag2 folder compressed file by file (``compression_mode: FILE``, zstd): a copy
-    with its files decompressed here (capped) and a metadata.yaml that says so, for rosbags to
-    read instead of decompressing them itself without a limit; None for any other folder."""
-    import yaml
-
-    names: list[str] = info["relative_file_paths"]
-    mode = str(info.get("compression_mode") or "").lower()
-    if mode != "file" or info.get("compression_format") != "zstd" or not names:
-        return None
-    if not all((folder / name).is_file() for name in names):
-        return None  # rosbags names the missing ones
-    staged = _temp_folder(stack) / folder.name
-    staged.mkdir()
-    unpacked = [PurePath(name).stem for name in names]  # rosbags' own names for them
-    for name, out in zip(names, unpacked, strict=True):
-        _inflate(folder / name, staged / out)
-    plain = {**info, "compression_mode": "", "compression_format": ""}
-    plain["relative_file_paths"] = unpacked
-    (staged / "metadata.yaml").write_text(
-        yaml.safe_dump({"rosbag2_bagfile_information": plain}), encoding="utf-8"
-    )
-    return staged
-
-
-def _rosbag2(path: Path, stack: ExitStack) -> _Source:
-    """A rosbag2 folder: its metadata.yaml and storage files must be regular files."""
-    meta = path / "metadata.yaml"
-    if regular_file(meta, "bag") > MAX_METADATA_BYTES:
-        raise InputError(
-            meta, f"larger than {MAX_METADATA_BYTES:,} bytes: not a rosbag2 metadata file"
-        )
-    info = _metadata(path)
-    listed = set() if info is None else set(info["relative_file_paths"])
-    for entry in sorted(path.iterdir()):
-        if entry.name.endswith(_STORAGE_NAMES) or entry.name in listed:
-            regular_file(entry, "bag")
-    staged = None if info is None else _unpack_file_mode(path, info, stack)
-    if staged is not None:
-        return _Source((path,), (staged,))
-    if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
-        link = _temp_folder(stack) / path.stem
-        link.symlink_to(path.resolve(), target_is_directory=True)
-        return _Source((path,), (link,))
-    return _Source((path,), (path,))
-
-
-def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Source:
-    items = [Path(given)] if isinstance(given, (str, os.PathLike)) else [Path(p) for p in given]
-    if not items:
-        raise InputError(None, "no bag given")
-    for p in items:
-        if not p.is_dir():  # a file, or nothing: refused before it is opened unless regular
-            regular_file(p, "bag", missing="bag not found")
-    if len(items) > 1:  # a split ROS1 recording
-        staged = []
-        for p in items:
-            if p.is_dir() or (kind := _sniff(p)) != "ros1":
-                raise InputError(
-                    p,
-                    "several paths are read as one split ROS1 recording: "
-                    "each must be a ROS1 .bag file",
-                )
-            staged.append(_stage(p, kind, stack))
-        return _Source(tuple(items), tuple(staged))
-
-    path = items[0]
-    if path.is_file() and path.name == "metadata.yaml":
-        path = path.parent
-    if path.is_dir():
-        meta = path / "metadata.yaml"
-        if meta.exists() or meta.is_symlink():
-            return _rosbag2(path, stack)
-        bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
-        if bags:
-            return _source(bags, stack) if len(bags) > 1 else _source(bags[0], stack)
-        storage = sorted(
-            p for p in path.iterdir() if p.is_file() and p.name.endswith(_STORAGE_NAMES)
-        )
-        if len(storage) == 1:
-            return _Source((path,), _source(storage[0], stack).read)
-        raise InputError(
-            path,
-            "no bag in this folder (expected metadata.yaml, .bag files, or one .db3/.mcap file)",
-        )
-    kind = _sniff(path)
-    if kind == "zstd":
-        return _Source((path,), (_decompress(path, stack),))
-    if kind in {"ros1", *_STORAGE_SUFFIX}:
-        return _Source((path,), (_stage(path, kind, stack),))
-    raise _not_a_bag(path, kind)
-
-
-def _explain(exc: BaseException, *, reading: bool = False) -> str:
-    """One line for an exception raised by rosbags (or its sqlite/mcap/zstd backends).
-
-    ``reading``: raised while streaming messages, after the bag opened fine.
-    """
-    if isinstance(exc, MemoryError):  # a length field read as gigabytes
-        return (
-            "the bag is damaged: a record claims more bytes than can be allocated (a corrupt "
-            "length field)"
-        )
-    if isinstance(exc, UnicodeError):  # its args hold the whole undecodable bytes
-        text = str(exc)
-    else:
-        text = " ".join(str(a) for a in exc.args) if exc.args else ""
-    text = _one_line(text).rstrip(".") or type(exc).__name__
-    low = text.lower()
-    if "index looks damaged" in low or "not indexed" in low or "header could not be read" in low:
-        return (
-            "the bag's index is missing or damaged (a truncated file or a recording that was "
-            "killed?); in ROS1 'rosbag reindex' rebuilds it"
-        )
-    if "end magic" in low:
-        return "the MCAP file is truncated or damaged (its end marker is missing)"
-    if "malformed" in low or "not a database" in low:
-        return "the sqlite3 file is truncated or damaged (database disk image is malformed)"
-    if reading:
-        return (
-            f"cannot read message data ({text}, {type(exc).__name__}): "
-            "the file is damaged or truncated"
-        )
-    return f"cannot read the bag: {text} ({type(exc).__name__})"
-
-
-def _one_line(text: str, limit: int = 200) -> str:
-    """A library's message as one short line (rosbags quotes whole message definitions)."""
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[:limit] + "..."
 
 
 # --- the bag --------------------------------------------------------------------------------------
@@ -676,7 +280,7 @@ class Bag:
         except InputError:
             raise
         except Exception as exc:  # rosbags' backends raise many types mid-stream; name the file
-            raise InputError(self._owner(conns), _explain(exc, reading=True)) from None
+            raise InputError(self._owner(conns), _explain(exc, reading=True)) from exc
 
     def _owner(self, conns: list[Connection]) -> Path:
         """The file to name for an error: in a split set, the one holding these connections."""
@@ -728,7 +332,7 @@ class Bag:
                     self._owner([conn]),
                     f"message on {conn.topic} at {(t_ns - self.start_ns) / 1e9:.3f} s cannot be "
                     f"decoded as {conn.msgtype} ({_one_line(str(exc)) or type(exc).__name__})",
-                ) from None
+                ) from exc
             yield conn.topic, int(t_ns), msg
 
     def count(
@@ -795,34 +399,6 @@ class Bag:
         return frozenset(normalise_frame(f) for f in frames if normalise_frame(f))
 
 
-def _undecodable(typestore: Typestore, msgtype: str) -> str | None:
-    """Why messages of this type cannot be deserialised, or None if they can."""
-    try:
-        typestore.get_msgdef(msgtype)
-    except KeyError as exc:
-        missing = exc.args[0] if exc.args else msgtype
-        if missing == msgtype:
-            return f"message type {msgtype} has no definition in the bag nor in ROS 2 Humble"
-        return f"the definition of {msgtype} needs {missing}, which is not defined"
-    except Exception as exc:  # rosbags' code generator rejecting a definition
-        return f"the definition of {msgtype} cannot be used ({_one_line(str(exc))})"
-    return None
-
-
-def _culprit(source: _Source, default: Path) -> Path:
-    """Which file of a split ROS1 set fails to open on its own (the first one if none does)."""
-    if len(source.paths) == 1:
-        return default
-    for given, read in zip(source.paths, source.read, strict=True):
-        reader = _Ros1Reader(read)
-        try:
-            reader.open()
-        except Exception:  # the same failure as in open_bag, now attributed to one file
-            return given
-        reader.close()
-    return default
-
-
 def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     """Open a ROS1 or ROS 2 bag for reading.
 
@@ -859,7 +435,7 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
                 reader.readers = [_Ros1Reader(p) for p in source.read]
             reader.open()
         except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
-            raise InputError(_culprit(source, where), _explain(exc)) from None
+            raise InputError(_culprit(source, where), _explain(exc)) from exc
         stack.callback(reader.close)
         if reader.message_count == 0:
             raise InputError(where, "the bag holds no messages")

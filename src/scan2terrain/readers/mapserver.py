@@ -109,15 +109,15 @@ def read_map_metadata(path: Path) -> MapMetadata:
         mark = getattr(exc, "problem_mark", None)
         if mark is not None:
             where = f" at line {mark.line + 1}, column {mark.column + 1}"
-        raise InputError(path, f"malformed YAML{where}") from None
+        raise InputError(path, f"malformed YAML{where}") from exc
     except UnicodeDecodeError:
         raise InputError(path, "not a text file (expected a map_server YAML)") from None
     except RecursionError:
         raise InputError(path, "malformed YAML (nested too deeply)") from None
     except ValueError as exc:  # an integer of more than 4300 digits
-        raise InputError(path, f"malformed YAML ({_short(exc)})") from None
+        raise InputError(path, f"malformed YAML ({_short(exc)})") from exc
     except OSError as exc:
-        raise InputError(path, f"cannot read the map YAML ({exc.strerror or exc})") from None
+        raise InputError(path, f"cannot read the map YAML ({exc.strerror or exc})") from exc
     if not isinstance(doc, dict):
         raise InputError(path, "expected a map_server YAML mapping with image, resolution, origin")
 

@@ -67,7 +67,7 @@ def read_scans(path: Path) -> Iterator[Scan]:
     except (OSError, EOFError, ValueError, zlib.error) as exc:
         if isinstance(exc, InputError):
             raise
-        raise InputError(path, f"cannot read as an OctoMap text scan file ({exc})") from None
+        raise InputError(path, f"cannot read as an OctoMap text scan file ({exc})") from exc
     if reader.count == 0:
         raise InputError(path, "no points in the scan file")
 

@@ -53,13 +53,9 @@ from scan2terrain.readers.bag import (
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
-from scan2terrain.readers.poses import (
-    PoseTrack,
-    TfBuffer,
-    mount,
-    odometry_track,
-    read_tum,
-)
+from scan2terrain.readers.poses import mount
+from scan2terrain.readers.tf import TfBuffer
+from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
 from scan2terrain.types import Pose2D, Scan, Transform, normalise_frame
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
@@ -384,7 +380,7 @@ def _pose_batch(
                 at = (t_ns - poser.start_ns) / 1e9
                 raise InputError(
                     poser.source, f"message on {topic} at {at:.3f} s: {exc.problem}"
-                ) from None
+                ) from exc
             if len(pts) == 0:
                 counts.empty += 1
                 continue

@@ -1,0 +1,163 @@
+"""What the CLI shows: the report of a written world (how to open it, where to spawn a robot) and
+the progress bars (tqdm, on stderr)."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from scan2terrain.readers.scans import ScanCounts
+    from scan2terrain.world.folder import Result
+
+
+class ProgressBar:
+    """Scans/s, points/s and ETA on stderr (tqdm), updated at most a few times a second. Rates
+    count from entering the block, not from the first update (which comes after a scan)."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._bar: Any = None
+        self._last = 0
+        self._start = 0.0
+
+    def __enter__(self) -> ProgressBar:
+        self._start = time.monotonic()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+    def update(self, counts: ScanCounts, total: int) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=total or None,
+                unit="scan",
+                file=sys.stderr,
+                dynamic_ncols=True,
+                mininterval=0.25,
+            )
+        self._bar.update(counts.messages - self._last)
+        self._last = counts.messages
+        self._bar.set_postfix_str(_rate(counts.points, self._start), refresh=False)
+
+
+class TaskBar:
+    """Streamed tasks done and points/s on stderr (tqdm)."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._bar: Any = None
+        self._last = 0
+        self._start = 0.0
+
+    def __enter__(self) -> TaskBar:
+        self._start = time.monotonic()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+    def update(self, done: int, total: int, points: int) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=total, unit="task", file=sys.stderr, dynamic_ncols=True, mininterval=0.25
+            )
+        self._bar.update(done - self._last)
+        self._last = done
+        self._bar.set_postfix_str(_rate(points, self._start), refresh=False)
+
+
+def _rate(points: int, start: float) -> str:
+    """Points per second since ``start`` (time.monotonic), as the bars show it."""
+    elapsed = max(time.monotonic() - start, 1e-3)
+    return f"{points / elapsed / 1e6:.2f} M points/s"
+
+
+def spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
+    """Where to spawn a robot (spawn.yaml), and the commands that put ROBOT.sdf there."""
+    x, y, z, _, _, yaw = (f"{v:g}" for v in pose)
+    head = f"    spawn a robot at x={x} y={y} z={z} yaw={yaw} (spawn.yaml), e.g.:"
+    if simulator == "gz":
+        qz, qw = math.sin(pose[5] / 2), math.cos(pose[5] / 2)
+        req = (
+            f'sdf_filename: "ROBOT.sdf", name: "robot", pose: {{position: {{x: {x}, y: {y},'
+            f" z: {z}}}, orientation: {{z: {qz:.6g}, w: {qw:.6g}}}}}"
+        )
+        return [
+            head,
+            "      gz service -s /world/scan2terrain/create --reqtype gz.msgs.EntityFactory"
+            f" --reptype gz.msgs.Boolean --timeout 5000 --req '{req}'",
+            "      ros2 run ros_gz_sim create -world scan2terrain -file ROBOT.sdf -name robot"
+            f" -x {x} -y {y} -z {z} -Y {yaw}",
+        ]
+    return [
+        head,
+        f"      gz model --spawn-file=ROBOT.sdf --model-name=robot -x {x} -y {y} -z {z} -Y {yaw}",
+        "      rosrun gazebo_ros spawn_model -sdf -file ROBOT.sdf -model robot"
+        f" -x {x} -y {y} -z {z} -Y {yaw}",
+    ]
+
+
+def report(result: Result) -> str:
+    """How to open what was written, for a human."""
+    from scan2terrain.steps import minus
+
+    out = result.out
+    walls = result.geometry != "heightmap"
+    rows, cols = result.tiles
+    side = f"{result.heightmap_side}x{result.heightmap_side} px"
+    ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
+    lines = [
+        f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
+        if walls
+        else f"Wrote {out}/ ({ground} at {result.resolution:g} m/px, heights up to "
+        f"{result.size_z:g} m)"
+    ]
+    for w in result.worlds:
+        p = w.placement
+        # Absolute paths: the resource variables are read by a simulator started anywhere.
+        models, world = w.models.absolute(), w.world.absolute()
+        if p.simulator == "gz":
+            lines += [
+                "  gz-sim (Garden or newer; DART physics, the default engine):",
+                f"    GZ_SIM_RESOURCE_PATH={models} gz sim {world}",
+                f"    (Fortress: IGN_GAZEBO_RESOURCE_PATH={models} ign gazebo {world})",
+                "    map frame = world frame: a map point (x, y) is world (x, y).",
+            ]
+        elif walls:
+            lines += [
+                "  Gazebo Classic:",
+                f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
+                "    map frame = world frame: a map point (x, y) is world (x, y).",
+            ]
+        else:
+            ox, oy = p.offset
+            lines += [
+                "  Gazebo Classic:",
+                f"    GAZEBO_MODEL_PATH={models} gazebo {world}",
+                "    Classic cannot move a heightmap: the terrain is centred on the world origin,",
+                f"    a map point (x, y) is world ({minus('x', ox)}, {minus('y', oy)}).",
+            ]
+        if w.map_yaml is not None:
+            lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
+        if w.spawn is not None:
+            lines += spawn_lines(p.simulator, w.spawn)
+    if result.preview is not None:
+        lines.append(f"  preview ({result.preview_label}): {result.preview}")
+    for note in result.notes:
+        lines.append(f"  {note}")
+    lines.append(f"  effective config: {result.config}")
+    return "\n".join(lines)

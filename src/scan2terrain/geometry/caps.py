@@ -1,0 +1,169 @@
+"""Cap triangulation of extruded outlines: convex rings take a fan, the others go to earcut on
+jittered points (:func:`_jitter`: outlines are full of exactly collinear points), then are
+checked and repaired along their own edges (:mod:`scan2terrain.geometry._cap_repair`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.geometry._cap_repair import _Cap, _needs_repair, _twice_areas
+from scan2terrain.geometry.contacts import _angles, _SharedPoints
+from scan2terrain.geometry.outlines import ring_area2
+
+
+def _caps(
+    xy: NDArray[np.float64],
+    start: NDArray[np.int64],
+    owner: NDArray[np.int64],
+    shared: _SharedPoints,
+) -> NDArray[np.int64]:
+    """Counter-clockwise triangles (vertex indices) covering every polygon, whose boundary
+    edges are exactly the outline edges (with the sector vertices of :class:`_SharedPoints`):
+    a fan for convex polygons without holes, earcut (then repaired, see :class:`_Cap`) for
+    the others."""
+    import mapbox_earcut
+
+    # Rings of one polygon are consecutive: find each polygon's first and last ring.
+    first = np.ones(len(owner), dtype=bool)
+    first[1:] = owner[1:] != owner[:-1]
+    poly_of_ring = np.cumsum(first) - 1
+    ring_lo = np.nonzero(first)[0]
+    ring_hi = np.append(ring_lo[1:], len(owner))
+    n_poly = len(ring_lo)
+    size = np.diff(start)
+    # Strictly convex rings (every turn left by more than rounding) take a fan.
+    nxt = np.arange(1, len(xy) + 1)
+    nxt[start[1:] - 1] = start[:-1]
+    prv = np.empty(len(xy), dtype=np.int64)
+    prv[nxt] = np.arange(len(xy))
+    e1, e2 = xy - xy[prv], xy[nxt] - xy
+    turn = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    sharp = turn > 1e-9 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    ring = np.repeat(np.arange(len(size)), size)
+    convex = np.bincount(ring, ~sharp, minlength=len(size)) == 0
+    fan = (ring_hi - ring_lo == 1) & convex[ring_lo]
+    fan_rings = ring_lo[fan]
+    count = size[fan_rings] - 2
+    lo = np.repeat(start[fan_rings], count)
+    i = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count) + 1
+    fans = np.stack([lo, lo + i, lo + i + 1], axis=1)
+    fan_owner = np.repeat(np.nonzero(fan)[0], count)
+    # Earcut for the others, on jittered local coordinates (see _jitter); every check of its
+    # output is done for all polygons at once, the repairs (rare) one polygon at a time.
+    ear_polys = np.nonzero(~fan)[0]
+    place = shared.place
+    first_vertex = start[ring_lo]
+    poly_of_vertex = poly_of_ring[ring]
+    local = _jitter(xy - xy[first_vertex[poly_of_vertex]], place, poly_of_vertex, n_poly)
+    parts: list[NDArray[np.int64]] = []
+    for k in ear_polys.tolist():
+        r0, r1 = int(ring_lo[k]), int(ring_hi[k])
+        p0, p1 = int(start[r0]), int(start[r1])
+        ends = (start[r0 + 1 : r1 + 1] - p0).astype(np.uint32)
+        ear = mapbox_earcut.triangulate_float64(local[p0:p1], ends)
+        parts.append(ear.astype(np.int64).reshape(-1, 3) + p0)
+    tri = np.concatenate(parts) if parts else np.zeros((0, 3), dtype=np.int64)
+    owner_of = poly_of_vertex[tri[:, 0]]
+    # Earcut winds all triangles of a polygon the same way: turn them all where that is
+    # clockwise (decided on their total, which rounding cannot flip, unlike a sliver's).
+    clockwise = np.bincount(owner_of, _twice_areas(xy, tri), minlength=n_poly) < 0
+    tri[clockwise[owner_of]] = tri[clockwise[owner_of]][:, ::-1]
+    # Repairs work on points (coincident vertices as one); a triangle between two copies of
+    # one point has no area and no place in the cap.
+    tri = place[tri]
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])
+    tri, owner_of = tri[keep], owner_of[keep]
+    is_ear = ~fan[poly_of_vertex]
+    ring_edges = np.stack([place[is_ear], place[nxt[is_ear]]], axis=1)
+    ring_owner = poly_of_vertex[is_ear]
+    broken = _needs_repair(
+        xy, tri, owner_of, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=n_poly
+    )
+    if broken.any():
+        fixed = [tri[~broken[owner_of]]]
+        owners = [owner_of[~broken[owner_of]]]
+        for k in np.nonzero(broken)[0].tolist():
+            cap = _Cap(xy, tri[owner_of == k])
+            cap.repair(ring_edges[ring_owner == k], k)
+            fixed.append(cap.array())
+            owners.append(np.full(len(fixed[-1]), k))
+        tri, owner_of = np.concatenate(fixed), np.concatenate(owners)
+    # Each corner at a point several vertices share takes the vertex of its sector.
+    parts = [_sector_corners(xy, np.concatenate([fans, tri]), shared)]
+    owners = [np.concatenate([fan_owner, owner_of])]
+    tri = np.concatenate(parts)
+    polygon = np.concatenate(owners)
+    # Each polygon's triangles must add up to exactly its area, none turned over.
+    area2 = _twice_areas(xy, tri)
+    got = np.bincount(polygon, np.abs(area2), minlength=n_poly)
+    want = np.bincount(poly_of_ring, ring_area2(xy, start), minlength=n_poly)
+    bad = ~np.isclose(got, want, rtol=1e-9, atol=1e-12) | (
+        np.bincount(polygon, area2 < 0, minlength=n_poly) > 0
+    )
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(
+            f"polygon {int(owner[ring_lo[k]])} cannot be triangulated into its own area"
+            " (rings crossing, or a hole outside its exterior)"
+        )
+    return tri
+
+
+def _jitter(
+    pts: NDArray[np.float64], place: NDArray[np.int64], polygon: NDArray[np.int64], n_poly: int
+) -> NDArray[np.float64]:
+    """The points moved by a tiny deterministic amount, for earcut only; points with the same
+    ``place`` (copies of one point) move together, so rings that touch still just touch.
+
+    Outlines are full of exactly collinear points (the corners of a staircase). Earcut clips
+    no ear there, gets stuck and drops points, leaving triangle edges through vertices. Moved
+    into general position it triangulates cleanly; back at the true points its triangles are
+    the same or have no area at all (slivers, flipped away by :class:`_Cap`), never turned
+    over: the move, ``1e-3 m^2 / D`` for the shortest edge ``m`` and the extent ``D`` of each
+    polygon (``polygon`` numbers the points' polygons, in order), changes a triangle's area by
+    far less than the smallest area that three outline points that are not collinear span (an
+    eighth of a square cell for points on the half-cell lattice).
+    """
+    # Successive points across rings count as edges too: that can only make the move smaller.
+    edges = np.diff(pts, axis=0, append=pts[:1])
+    lengths = np.einsum("ij,ij->i", edges, edges)
+    lengths[(lengths == 0) | (np.append(polygon[1:], -1) != polygon)] = np.inf
+    shortest = np.full(n_poly, np.inf)
+    np.minimum.at(shortest, polygon, lengths)
+    lo = np.full((n_poly, 2), np.inf)
+    hi = np.full((n_poly, 2), -np.inf)
+    np.minimum.at(lo, polygon, pts)
+    np.maximum.at(hi, polygon, pts)
+    extent = (hi - lo).max(axis=1)
+    step = 1e-3 * shortest / np.where(extent > 0, extent, 1.0)  # shortest is squared
+    step[~np.isfinite(step)] = 0.0
+    # A hash of the place, not a random draw: the same bytes every run. Not a multiplicative
+    # hash either: that is linear, and evenly numbered points on a line would stay on one.
+    key = place.astype(np.uint64)[:, None] * np.uint64(2) + np.array([0, 1], dtype=np.uint64)
+    unit = (splitmix64(key) >> np.uint64(11)).astype(np.float64) / float(1 << 53) * 2.0 - 1.0
+    moved: NDArray[np.float64] = pts + unit * step[polygon][:, None]
+    return moved
+
+
+def splitmix64(x: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """The splitmix64 finaliser (Steele, Lea, Flood 2014): a well-mixed 64-bit hash."""
+    z = x + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    mixed: NDArray[np.uint64] = z ^ (z >> np.uint64(31))
+    return mixed
+
+
+def _sector_corners(
+    xy: NDArray[np.float64], tri: NDArray[np.int64], shared: _SharedPoints
+) -> NDArray[np.int64]:
+    """Triangle corners at shared points renamed to the vertex of the sector they lie in."""
+    t, c = np.nonzero(shared.is_shared[tri])
+    if len(t) == 0:
+        return tri
+    tri = tri.copy()
+    v = tri[t, c]
+    mid = 0.5 * (xy[tri[t, (c + 1) % 3]] + xy[tri[t, (c + 2) % 3]])
+    tri[t, c] = shared.sector_at(v, _angles(mid - xy[v]))
+    return tri

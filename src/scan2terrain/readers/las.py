@@ -1,0 +1,260 @@
+"""LAS and LAZ files -> float64 points, whole (:func:`read_las`) or streamed by point range
+(:func:`iter_las`), and their headers alone (:func:`las_info`); a path or a URL.
+
+laspy (LAZ through its lazrs backend), read chunk by chunk; coordinates are the scaled float64
+``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32), computed by
+``_las_kernels.py``. Before laspy opens a file its header and (LAZ) chunk table are checked
+against the file's size (``_las_layout.py``), and a Rust panic in lazrs is refused like any
+corrupt file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+from collections.abc import Collection, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._files import regular_file
+from scan2terrain.readers._las_layout import check_las_layout, is_panic, panic_error
+
+LAS_SUFFIXES = (".las", ".laz")
+#: LAS points decoded per chunk (about 50 MB of LAS records at most).
+LAS_CHUNK = 1_000_000
+# laspy logs a backend it could not build (a corrupt LAZ) before raising; library code never
+# prints, and without a handler Python's last resort would print it to stderr.
+logging.getLogger("laspy").addHandler(logging.NullHandler())
+
+
+def class_codes(path: Path | str, suffix: str, las_classes: Collection[int]) -> NDArray[np.int64]:
+    """The requested LAS classification codes, sorted and unique; InputError for a file that
+    is not LAS/LAZ (``suffix``), ValueError for codes outside 0..255."""
+    if suffix not in LAS_SUFFIXES:
+        raise InputError(path, "LAS classes can only be selected in .las/.laz files")
+    classes = np.array(sorted({int(c) for c in las_classes}), dtype=np.int64)
+    if classes.size == 0 or classes.min() < 0 or classes.max() > 255:
+        raise ValueError(f"las_classes must be LAS class codes 0..255, got {las_classes!r}")
+    return classes
+
+
+def read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np.float64], str]:
+    """All points of a local LAS/LAZ file (of ``classes`` only, when given) and what was read
+    (``"laz 1.2 point format 3"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+    import laspy  # type: ignore[import-untyped]
+
+    parts: list[NDArray[np.float64]] = []
+    present: set[int] = set()
+    seen = 0
+    with path.open("rb") as raw:
+        check_las_layout(raw, path.stat().st_size, path, decode=(0, None))
+    try:
+        with laspy.open(path) as reader:
+            header = reader.header
+            n = int(header.point_count)
+            version = f"{header.version.major}.{header.version.minor}"
+            fmt = f"{path.suffix.lower()[1:]} {version} point format {header.point_format.id}"
+            for chunk in reader.chunk_iterator(LAS_CHUNK):
+                seen += len(chunk)
+                xyz = _xyz(chunk)
+                if classes is not None:
+                    codes = np.asarray(chunk.classification)
+                    present.update(np.unique(codes).tolist())
+                    xyz = xyz[np.isin(codes, classes)]
+                parts.append(xyz)
+    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError) as exc:
+        # lazrs raises LazrsError (a RuntimeError) for corrupt or truncated LAZ data.
+        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from exc
+    except BaseException as exc:
+        if not is_panic(exc):
+            raise
+        raise panic_error(path, exc) from exc
+    if seen != n:
+        raise InputError(path, f"truncated LAS file: the header says {n} points, read {seen}")
+    points = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if classes is not None and len(points) == 0 and seen > 0:
+        raise InputError(
+            path,
+            f"no point of class {', '.join(map(str, classes.tolist()))} "
+            f"(classes present: {', '.join(map(str, sorted(present)))})",
+        )
+    return points, fmt
+
+
+@dataclass(frozen=True)
+class LasInfo:
+    """A LAS/LAZ header: point count and bounds (the file's units) without reading points."""
+
+    path: Path | str  #: a local path, or a URL as given
+    points: int
+    mins: tuple[float, float, float]
+    maxs: tuple[float, float, float]
+    format: str
+
+
+def is_url(name: Path | str) -> bool:
+    """``scheme://...`` (http, https, s3, file, ...), as opposed to a local path."""
+    return re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(name)) is not None
+
+
+def url_path(name: Path | str) -> Path:
+    """A path, or a URL as a path (its query and fragment dropped), for names and suffixes."""
+    return Path(re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else name)
+
+
+def url_suffix(name: Path | str) -> str:
+    """The lower-case extension of a path or URL."""
+    return url_path(name).suffix.lower()
+
+
+@contextlib.contextmanager
+def _las_source(name: Path | str) -> Iterator[Any]:
+    """What ``laspy.open`` reads: a local path, or a file object fsspec opens for a URL (any
+    protocol fsspec has: http(s) with aiohttp, s3 with s3fs, ...)."""
+    if not is_url(name):
+        path = Path(name)
+        if regular_file(path, "point-cloud file") == 0:
+            raise InputError(path, "empty file")
+        yield path
+        return
+    url = str(name)
+    try:
+        import fsspec  # type: ignore[import-untyped]
+    except ImportError:
+        raise InputError(url, "URLs need fsspec: pip install 'scan2terrain[dask]'") from None
+    try:
+        with fsspec.open(url, "rb") as f:
+            yield f
+    except (FileNotFoundError, ImportError, ValueError) as exc:
+        raise InputError(url, f"cannot open the URL ({type(exc).__name__}: {exc})") from exc
+
+
+def las_info(path: Path | str) -> LasInfo:
+    """The header of a LAS/LAZ file (a path, or a URL fsspec can open). Raises InputError for a
+    missing, empty, foreign or truncated (uncompressed: shorter than its header's points need)
+    file."""
+    import laspy
+
+    where: Path | str = path if is_url(path) else Path(path)
+    try:
+        with _las_source(where) as source, _checked(source, where), laspy.open(source) as reader:
+            h = reader.header
+            n = int(h.point_count)
+            version = f"{h.version.major}.{h.version.minor}"
+            fmt = f"{url_suffix(where)[1:]} {version} point format {h.point_format.id}"
+            mins = tuple(float(v) for v in h.mins)
+            maxs = tuple(float(v) for v in h.maxs)
+    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from exc
+    except BaseException as exc:
+        if not is_panic(exc):
+            raise
+        raise panic_error(where, exc) from exc
+    return LasInfo(where, n, mins, maxs, fmt)  # type: ignore[arg-type]  # 3-tuples
+
+
+@contextlib.contextmanager
+def _checked(
+    source: Any, where: Path | str, decode: tuple[int, int | None] | None = None
+) -> Iterator[None]:
+    """:func:`check_las_layout` on a path or a seekable file object (left at its start); an
+    unseekable stream is not checked (the PanicException backstop still applies)."""
+    if isinstance(source, Path):
+        with source.open("rb") as f:
+            check_las_layout(f, source.stat().st_size, where, decode=decode)
+    elif source.seekable():
+        check_las_layout(source, _size(source), where, decode=decode)
+        source.seek(0)
+    yield
+
+
+def _size(source: Any) -> int:
+    if isinstance(source, Path):
+        return source.stat().st_size
+    size = getattr(source, "size", None)
+    if size is None:
+        here = source.tell()
+        size = source.seek(0, 2)
+        source.seek(here)
+    return int(size)
+
+
+def iter_las(
+    path: Path | str,
+    *,
+    start: int = 0,
+    count: int | None = None,
+    step: int = LAS_CHUNK,
+    las_classes: Collection[int] | None = None,
+    origin: NDArray[np.float64] | None = None,
+) -> Iterator[NDArray[np.float64]]:
+    """Points ``[start, start + count)`` of a LAS/LAZ file (``count`` None: to the end), ``step``
+    at a time, as float64 (n, 3) in the file's units (``X * scale + offset``, as laspy computes
+    them) less ``origin``, of the requested classes only. Non-finite points are not possible in
+    LAS. Raises InputError naming the file for unreadable or truncated data."""
+    import laspy
+
+    where: Path | str = path if is_url(path) else Path(path)
+    suffix = url_suffix(where)
+    classes = None if las_classes is None else class_codes(where, suffix, las_classes)
+    want = -1
+    seen = 0
+    try:
+        stop = None if count is None else start + count
+        with (
+            _las_source(where) as source,
+            _checked(source, where, (start, stop)),
+            laspy.open(source) as reader,
+        ):
+            total = int(reader.header.point_count)
+            want = total - start if count is None else min(count, total - start)
+            if start:
+                reader.seek(start)
+            while seen < want:
+                chunk = reader.read_points(min(step, want - seen))
+                if len(chunk) == 0:
+                    break
+                seen += len(chunk)
+                xyz = _xyz(chunk, origin)
+                if classes is not None:
+                    xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
+                yield xyz
+    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from exc
+    except BaseException as exc:  # GeneratorExit at a yield is re-raised as it is
+        if not is_panic(exc):
+            raise
+        raise panic_error(where, exc) from exc
+    if seen != want:
+        raise InputError(
+            where, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
+        )
+
+
+def _xyz(points: Any, origin: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, exactly as laspy scales
+    them (``X * scale + offset``), less ``origin`` (metres, default none)."""
+    from scan2terrain.readers._las_kernels import scaled_xyz
+
+    out = np.empty((len(points), 3), dtype=np.float64)
+    arr = points.array
+    scaled_xyz(
+        arr["X"],
+        arr["Y"],
+        arr["Z"],
+        np.asarray(points.scales, dtype=np.float64),
+        np.asarray(points.offsets, dtype=np.float64),
+        np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64),
+        out,
+    )
+    return out

@@ -1,0 +1,143 @@
+"""PCD files (``DATA ascii``, ``binary``, ``binary_compressed``) -> float64 points.
+
+The header is parsed and checked here and the data decoded with numpy (a structured dtype over
+the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double fields; Open3D decodes
+``binary_compressed`` (LZF), once the header's sizes have been checked against the file.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._cloud_common import (
+    XYZ,
+    decode_text,
+    loadtxt,
+    need_bytes,
+    open3d_points,
+    stack,
+)
+
+_PCD_TYPES = {
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+    ("I", 1): "i1",
+    ("I", 2): "i2",
+    ("I", 4): "i4",
+    ("I", 8): "i8",
+    ("U", 1): "u1",
+    ("U", 2): "u2",
+    ("U", 4): "u4",
+    ("U", 8): "u8",
+}
+_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT")
+
+
+def read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
+    """x, y, z of every point of a PCD file (non-finite ones kept) and what was read
+    (``"pcd binary"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+    raw = path.read_bytes()
+    head, start = _pcd_header(path, raw)
+    names = head["FIELDS"]
+    sizes, types = head.get("SIZE", []), head.get("TYPE", [])
+    counts = head.get("COUNT", ["1"] * len(names))
+    if not (len(names) == len(sizes) == len(types) == len(counts)):
+        raise InputError(path, "PCD header: FIELDS, SIZE, TYPE and COUNT differ in length")
+    width, height = _pcd_int(path, head, "WIDTH"), _pcd_int(path, head, "HEIGHT")
+    n = _pcd_int(path, head, "POINTS") if "POINTS" in head else width * height
+    if n != width * height:
+        raise InputError(path, f"PCD header: POINTS {n} is not WIDTH x HEIGHT {width}x{height}")
+    # Two fields of one name (PCL names its padding fields "_", any number of them) would make
+    # the x, y or z read an accident of which one is taken.
+    twice = next((n for i, n in enumerate(names) if n != "_" and n in names[:i]), None)
+    if twice is not None:
+        raise InputError(path, f"PCD header: field {twice!r} appears twice in FIELDS")
+    missing = [a for a in XYZ if a not in names]
+    if missing:
+        raise InputError(path, f"PCD has no field {', '.join(missing)} (FIELDS {' '.join(names)})")
+    try:
+        size_l, count_l = [int(s) for s in sizes], [int(c) for c in counts]
+    except ValueError:
+        raise InputError(path, "PCD header: SIZE and COUNT must be integers") from None
+    if min(size_l, default=1) < 1 or min(count_l, default=0) < 0:
+        raise InputError(path, "PCD header: SIZE must be positive and COUNT not negative")
+    offsets = np.concatenate([[0], np.cumsum(np.multiply(size_l, count_l))]).tolist()
+    columns = np.concatenate([[0], np.cumsum(count_l)]).tolist()
+    step = int(offsets[-1])
+    formats, at, cols = [], [], []
+    for axis in XYZ:
+        i = names.index(axis)
+        code = _PCD_TYPES.get((types[i].upper(), size_l[i]))
+        if code is None or count_l[i] != 1:
+            raise InputError(
+                path,
+                f"PCD field {axis}: unsupported TYPE {types[i]} SIZE {sizes[i]} COUNT {counts[i]}",
+            )
+        formats.append("<" + code)
+        at.append(int(offsets[i]))
+        cols.append(int(columns[i]))
+    kind = head["DATA"][0].lower() if head["DATA"] else ""
+    if kind == "ascii":
+        text = decode_text(path, raw[start:])
+        pts = loadtxt(path, io.StringIO(text), cols, delimiter=None, skiprows=0)
+        if len(pts) != n:
+            cut = "truncated: " if len(pts) < n else ""
+            raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(pts)}")
+        return pts, "pcd ascii"
+    if kind == "binary":
+        need_bytes(path, len(raw), start + n * step, f"{n} points of {step} bytes")
+        dtype = np.dtype({"names": list(XYZ), "formats": formats, "offsets": at, "itemsize": step})
+        rec = np.frombuffer(raw, dtype=dtype, count=n, offset=start)
+        return stack(rec), "pcd binary"
+    if kind == "binary_compressed":
+        need_bytes(path, len(raw), start + 8, "the compressed block's sizes")
+        packed, unpacked = (int(v) for v in np.frombuffer(raw, dtype="<u4", count=2, offset=start))
+        if unpacked != n * step:
+            raise InputError(
+                path,
+                f"PCD compressed block unpacks to {unpacked} bytes, {n} points need {n * step}",
+            )
+        need_bytes(path, len(raw), start + 8 + packed, f"a compressed block of {packed} bytes")
+        return open3d_points(path, n), "pcd binary_compressed"
+    raise InputError(path, f"PCD header: unknown DATA {' '.join(head['DATA'])!r}")
+
+
+def _pcd_header(path: Path, raw: bytes) -> tuple[dict[str, list[str]], int]:
+    """Header keys -> values, and the byte offset where the data starts (after the DATA line)."""
+    head: dict[str, list[str]] = {}
+    pos = 0
+    while pos < len(raw):
+        end = raw.find(b"\n", pos)
+        end = len(raw) if end < 0 else end
+        try:
+            line = raw[pos:end].decode("ascii").strip()
+        except UnicodeDecodeError:
+            line = "\ufffd"
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        key = key.upper()
+        if not head and key not in _PCD_KEYS:
+            raise InputError(path, f"not a PCD file (it starts with {line[:40]!r})")
+        head[key] = values
+        if key == "DATA":
+            if "FIELDS" not in head:
+                raise InputError(path, "PCD header has no FIELDS line")
+            return head, min(pos, len(raw))
+    raise InputError(path, "not a PCD file (no DATA line in its header)")
+
+
+def _pcd_int(path: Path, head: dict[str, list[str]], key: str) -> int:
+    try:
+        value = int(head[key][0])
+    except (KeyError, IndexError, ValueError):
+        raise InputError(path, f"PCD header: {key} is missing or not an integer") from None
+    if value < 0:
+        raise InputError(path, f"PCD header: {key} {value} is negative")
+    return value

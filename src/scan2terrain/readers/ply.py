@@ -1,0 +1,194 @@
+"""PLY files (ascii, binary of either byte order) -> float64 points.
+
+The header is parsed and checked here and the vertex data decoded with numpy (a structured
+dtype over the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double properties.
+Open3D (RPly) reads files with list properties before or inside the vertex element (rows of
+varying length), once the data has been checked to be long enough for the header's counts.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._cloud_common import (
+    XYZ,
+    decode_text,
+    loadtxt,
+    need_bytes,
+    open3d_points,
+    stack,
+)
+
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+
+
+@dataclass(frozen=True)
+class _Element:
+    name: str
+    count: int
+    props: list[tuple[str, str | None]]  # (name, numpy code), None for a list property
+    lists: list[str] = field(default_factory=list)  # numpy code of each list's length
+
+    @property
+    def fixed(self) -> bool:
+        return all(code is not None for _, code in self.props)
+
+    @property
+    def min_row(self) -> int:
+        """Bytes of a binary row whose lists are all empty."""
+        return _row_size(self) + sum(np.dtype(code).itemsize for code in self.lists)
+
+
+def read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
+    """x, y, z of every vertex of a PLY file (non-finite ones kept) and what was read
+    (``"ply ascii"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+    raw = path.read_bytes()
+    fmt, elements, start = _ply_header(path, raw)
+    index = [e.name for e in elements].index("vertex")
+    vertex, before = elements[index], elements[:index]
+    names = [p for p, _ in vertex.props]
+    if not vertex.fixed or not all(e.fixed for e in before):
+        # Rows of varying length: Open3D (RPly) walks them.
+        _check_ply_rows(path, fmt, raw, start, [*before, vertex])
+        return open3d_points(path, vertex.count), f"ply {fmt}"
+    if fmt == "ascii":
+        cols = [names.index(a) for a in XYZ]
+        skip = sum(e.count for e in before)  # one line per item of each earlier element
+        lines = raw.count(b"\n", start) + (not raw.endswith(b"\n"))
+        if lines < skip + vertex.count:  # before numpy sizes its table by the header's count
+            after = f" after {skip} rows of earlier elements" if skip else ""
+            raise InputError(
+                path,
+                f"truncated: PLY header says {vertex.count} vertices, the data has "
+                f"{max(lines - skip, 0)} lines{after}",
+            )
+        text = decode_text(path, raw[start:])
+        pts = loadtxt(
+            path,
+            io.StringIO(text),
+            cols,
+            delimiter=None,
+            skiprows=skip,
+            max_rows=vertex.count,
+            comments=None,
+        )
+        if len(pts) != vertex.count:
+            raise InputError(
+                path, f"truncated: PLY header says {vertex.count} vertices, the data has {len(pts)}"
+            )
+        return pts, "ply ascii"
+    order = "<" if fmt == "binary_little_endian" else ">"
+    offset = start + sum(e.count * _row_size(e) for e in before)
+    step = _row_size(vertex)
+    sizes = np.cumsum([0] + [np.dtype(code).itemsize for _, code in vertex.props]).tolist()
+    dtype = np.dtype(
+        {
+            "names": list(XYZ),
+            "formats": [order + str(vertex.props[names.index(a)][1]) for a in XYZ],
+            "offsets": [int(sizes[names.index(a)]) for a in XYZ],
+            "itemsize": step,
+        }
+    )
+    need_bytes(
+        path, len(raw), offset + vertex.count * step, f"{vertex.count} vertices of {step} bytes"
+    )
+    return stack(np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)), f"ply {fmt}"
+
+
+def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
+    if not raw.startswith((b"ply\n", b"ply\r\n")):
+        raise InputError(path, "not a PLY file (it does not start with 'ply')")
+    end = raw.find(b"end_header")
+    if end < 0:
+        raise InputError(path, "PLY header has no end_header line")
+    newline = raw.find(b"\n", end)
+    start = len(raw) if newline < 0 else newline + 1
+    fmt = ""
+    elements: list[_Element] = []
+    for line in decode_text(path, raw[:end]).splitlines()[1:]:
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        try:
+            if words[0] == "format":
+                fmt = words[1]
+            elif words[0] == "element":
+                elements.append(_Element(words[1], int(words[2]), []))
+            elif words[0] == "property" and words[1] == "list":
+                length, _ = _PLY_TYPES[words[2]], _PLY_TYPES[words[3]]
+                if np.dtype(length).kind not in "iu":
+                    raise ValueError
+                elements[-1].props.append((words[4], None))
+                elements[-1].lists.append(length)
+            elif words[0] == "property":
+                elements[-1].props.append((words[2], _PLY_TYPES[words[1]]))
+            else:
+                raise ValueError
+        except (IndexError, ValueError, KeyError):
+            raise InputError(path, f"PLY header: cannot read the line {line[:60]!r}") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise InputError(path, f"PLY header: unknown format {fmt!r}")
+    vertices = [e for e in elements if e.name == "vertex"]
+    if not vertices:
+        raise InputError(path, "PLY has no vertex element")
+    props = dict(vertices[0].props)
+    missing = [a for a in XYZ if a not in props]
+    if missing:
+        raise InputError(path, f"PLY vertex element has no property {', '.join(missing)}")
+    if any(props[a] is None for a in XYZ):
+        raise InputError(path, "PLY vertex x/y/z must be numbers, not lists")
+    if any(e.count < 0 for e in elements):
+        raise InputError(path, "PLY header: negative element count")
+    return fmt, elements, start
+
+
+def _row_size(element: _Element) -> int:
+    return sum(np.dtype(code).itemsize for _, code in element.props if code is not None)
+
+
+def _check_ply_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Element]) -> None:
+    """Refuse PLY data too short for its elements' counts even with every list empty, before
+    Open3D (RPly) reads it: it keeps the rows it could not read as uninitialised points."""
+    if fmt == "ascii":  # one number per property, at least (a list's length)
+        need = sum(e.count * len(e.props) for e in elements)
+        have, unit = _count_words(raw, start), "numbers"
+    else:
+        need = sum(e.count * e.min_row for e in elements)
+        have, unit = len(raw) - start, "bytes"
+    if have < need:
+        raise InputError(
+            path,
+            f"truncated: the PLY header's {elements[-1].count} vertices need at least {need} "
+            f"{unit} of data, the file has {have}",
+        )
+
+
+def _count_words(data: bytes, start: int) -> int:
+    """Whitespace-separated words in ``data[start:]`` (numpy over the bytes, no Python loop)."""
+    view = np.frombuffer(data, dtype=np.uint8, offset=start)
+    space = np.isin(view, np.frombuffer(b" \t\n\r\v\f", dtype=np.uint8))
+    starts = np.count_nonzero(space[:-1] & ~space[1:])
+    return int(starts) + int(view.size > 0 and not space[0])

@@ -1,0 +1,262 @@
+"""The world folder: what a command writes, computed as a :class:`WorldFolder` and written by
+:func:`write_world_folder`, the one writer (atomically: map/, each simulator's models and world,
+spawn.yaml, preview, extra files, the effective config), and the :class:`Result` it reports,
+built by adding notes, never by replacing them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from scan2terrain.config import Config
+from scan2terrain.exporters import mapserver as map_export
+from scan2terrain.exporters import sdf
+from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.exporters.output import OutputDir, atomic_output
+from scan2terrain.steps import Preview
+from scan2terrain.types import (
+    OccupancyGrid,
+    Pose2D,
+    Spawn,
+)
+
+WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
+
+
+CONFIG_FILE = "scan2terrain.yaml"
+
+
+SPAWN_FILE = "spawn.yaml"
+
+
+#: What the extra files a command writes beside the world are, for the report (by stem).
+EXTRA_ABOUT = {
+    "octree": "the octree, as OctoMap's .bt (octovis, octomap_server, octree2world)",
+    "occupied_voxels": "the occupied voxels' centres",
+}
+
+
+@dataclass(frozen=True)
+class WorldOutput:
+    """One simulator's world inside the output folder.
+
+    ``map_yaml`` is the map_server YAML lined up with this world (None when no map was written,
+    or when the map was written as tiles: then ``map_tiles`` lists one YAML per tile, row by row
+    from the lowest y). For tiled terrain ``placement`` describes the whole terrain (model name
+    = the tiles' common prefix, size = the grid's extent).
+    """
+
+    placement: sdf.Placement
+    world: Path
+    models: Path
+    map_yaml: Path | None
+    map_tiles: tuple[Path, ...] = ()
+    #: Where to spawn a robot, in this world's frame: (x, y, z, roll, pitch, yaw).
+    spawn: tuple[float, float, float, float, float, float] | None = None
+
+
+@dataclass
+class Result:
+    """What a command wrote, for the CLI to report."""
+
+    out: Path
+    worlds: list[WorldOutput] = field(default_factory=list)
+    heightmap_side: int = 0
+    resolution: float = 0.0
+    size_z: float = 0.0
+    preview: Path | None = None
+    config: Path | None = None
+    notes: list[str] = field(default_factory=list)  #: what was read and chosen, for the report
+    geometry: str = "heightmap"  #: world.geometry of the worlds written
+    walls: str = ""  #: for wall geometries: what the walls are made of, for the report
+    tiles: tuple[int, int] = (1, 1)  #: heightmap tiles along y and x (terrain.max_side)
+    spawn: Spawn | None = None  #: where a robot can start, map frame (each world's: worlds)
+    preview_label: str = ""  #: what preview.png shows, for the report
+
+
+@dataclass(frozen=True)
+class SimWorld:
+    """One simulator's share of a world folder: its models' files and its world file."""
+
+    placement: sdf.Placement  #: where the terrain or walls sit (for the report)
+    files: dict[str, bytes]  #: relative path (models/<name>/...) -> bytes
+    world: bytes  #: the world file (world_gz.sdf or world_classic.world)
+    map_offset: tuple[float, float]  #: map frame -> this world's frame, for map/*.yaml
+    comment: str  #: what the map YAMLs say about where they come from
+    spawn: tuple[float, float, float, float, float, float]  #: the spawn pose in this world
+
+
+@dataclass(frozen=True)
+class WorldFolder:
+    """Everything a world folder holds, computed; :func:`write_world_folder` writes it."""
+
+    source: Path
+    result: Result  #: the report so far (notes are added to, never replaced)
+    worlds: list[SimWorld]
+    map_out: OccupancyGrid | None  #: the navigation map in world axes, or None
+    preview: Preview
+    extra: dict[str, bytes]  #: more files at the top (octree.bt, occupied voxels)
+
+
+def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite: bool) -> Result:
+    """The one writer of world folders, atomically: map/, each simulator's models and world,
+    spawn.yaml, preview, extra files, the effective config. Returns the completed report."""
+    result = folder.result
+    with atomic_output(out, overwrite=overwrite) as od:
+        _write_map_pgm(od, cfg, folder.map_out)
+        for part in folder.worlds:
+            sim = part.placement.simulator
+            for rel, data in part.files.items():
+                od.write(rel, data)
+            world = od.write(WORLD_FILES[sim], part.world)
+            yamls = _write_map_yaml(
+                od, cfg, folder.map_out, sim=sim, offset=part.map_offset, comment=part.comment
+            )
+            result.worlds.append(
+                _world_output(part.placement, world, out / "models", yamls, part.spawn)
+            )
+        _write_tail(
+            od, result, cfg, source=folder.source, preview=folder.preview, extra=folder.extra
+        )
+    return result
+
+
+def _world_output(
+    p: sdf.Placement,
+    world: Path,
+    models: Path,
+    yamls: tuple[Path, ...],
+    spawn: tuple[float, float, float, float, float, float],
+) -> WorldOutput:
+    if len(yamls) == 1:
+        return WorldOutput(p, world, models, yamls[0], spawn=spawn)
+    return WorldOutput(p, world, models, None, yamls, spawn=spawn)
+
+
+def spawn_pose(
+    spawn: Spawn, offset: tuple[float, float], z_offset: float
+) -> tuple[float, float, float, float, float, float]:
+    """The spawn spot in one world's frame: (x, y, z, roll, pitch, yaw), map minus offsets,
+    rounded to the millimetre (and milliradian) for files and commands."""
+    return (
+        round(spawn.x - offset[0], 3) + 0.0,
+        round(spawn.y - offset[1], 3) + 0.0,
+        round(spawn.z - z_offset, 3) + 0.0,
+        0.0,
+        0.0,
+        round(spawn.yaw, 3) + 0.0,
+    )
+
+
+def spawn_comment(spawn: Spawn, pose: tuple[float, ...]) -> str:
+    x, y, z, _, _, yaw = pose
+    return (
+        f" Spawn a robot at x={x:g} y={y:g} z={z:g} yaw={yaw:g} (this world's frame; z is the"
+        f" ground, see spawn.yaml): {spawn.why}.\n"
+    )
+
+
+def _spawn_yaml(result: Result) -> bytes:
+    """spawn.yaml: the spawn pose in every world of the folder, and how it was chosen."""
+    import yaml
+
+    assert result.spawn is not None
+    doc: dict[str, object] = {"why": result.spawn.why}
+    for w in result.worlds:
+        if w.spawn is not None:
+            doc[w.placement.simulator] = {"world": w.world.name, "pose": list(w.spawn)}
+    header = (
+        "# Where to spawn a robot in each world of this folder (scan2terrain): pose is\n"
+        "# [x, y, z, roll, pitch, yaw] in that world's frame (metres, radians); z is the\n"
+        "# highest ground under a 1.5 x 1.5 m footprint, so a robot whose model origin is at\n"
+        "# its lowest point rests there.\n"
+    )
+    return (header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)).encode()
+
+
+def _map_parts(cfg: Config, map_out: OccupancyGrid) -> list[tuple[str, OccupancyGrid]]:
+    """(file stem, grid) of the map/ image(s): ``map`` when the map fits
+    ``output.map_max_side``, else ``map_<row>_<col>`` tiles (row 0 = lowest y)."""
+    parts = map_export.map_tiles(map_out, cfg.output.map_max_side)
+    if len(parts) == 1:
+        return [("map", map_out)]
+    return [(f"map_{i}_{j}", tile) for i, j, tile in parts]
+
+
+def map_notes(cfg: Config, map_out: OccupancyGrid | None) -> list[str]:
+    if map_out is None or not cfg.output.map_yaml:
+        return []
+    rows, cols = map_out.shape
+    m = cfg.output.map_max_side
+    if rows <= m and cols <= m:
+        return []
+    return [
+        f"Map: {rows}x{cols} cells, over output.map_max_side {m}: written as "
+        f"{-(-rows // m)}x{-(-cols // m)} tiles map/map_<row>_<col>.pgm (row 0 = lowest y), "
+        "each with map_<row>_<col>_<simulator>.yaml placing it in that world."
+    ]
+
+
+def _write_map_pgm(od: OutputDir, cfg: Config, map_out: OccupancyGrid | None) -> None:
+    if map_out is not None and cfg.output.map_yaml:
+        for stem, part in _map_parts(cfg, map_out):
+            od.write(f"map/{stem}.pgm", map_export.map_pgm(part))
+
+
+def _write_map_yaml(
+    od: OutputDir,
+    cfg: Config,
+    map_out: OccupancyGrid | None,
+    *,
+    sim: str,
+    offset: tuple[float, float],
+    comment: str,
+) -> tuple[Path, ...]:
+    """map/map_<sim>.yaml: the filtered map with its origin in that simulator's world frame; for
+    a tiled map, map/map_<row>_<col>_<sim>.yaml per tile, each with its own tile's origin."""
+    if map_out is None or not cfg.output.map_yaml:
+        return ()
+    parts = _map_parts(cfg, map_out)
+    written = []
+    for stem, part in parts:
+        # map_out is in world axes (grids.axis_align): its yaw, and each tile's, is 0.
+        shifted = part.with_data(
+            part.data, Pose2D(part.origin.x - offset[0], part.origin.y - offset[1], 0.0)
+        )
+        about = f"Filtered map in the {sim} world frame.\n"
+        if len(parts) > 1:
+            about = (
+                f"Tile {stem} of the filtered map (rows, columns from the lowest y, x; up to"
+                f" {cfg.output.map_max_side} cells a side) in the {sim} world frame.\n"
+            )
+        name = f"map/{stem}_{sim}.yaml"
+        text = map_export.map_yaml(shifted, f"{stem}.pgm", comment=about + comment)
+        written.append(od.write(name, text))
+    return tuple(written)
+
+
+def _write_tail(
+    od: OutputDir,
+    result: Result,
+    cfg: Config,
+    *,
+    source: Path,
+    preview: Preview,
+    extra: dict[str, bytes] | None,
+) -> None:
+    """Preview, extra files and the effective config, as every command writes them."""
+    import yaml
+
+    if cfg.output.preview:
+        result.preview = od.write("preview.png", preview.png)
+        result.preview_label = preview.label
+    if result.spawn is not None and result.worlds:
+        od.write(SPAWN_FILE, _spawn_yaml(result))
+    for name, data in (extra or {}).items():
+        path = od.write(name, data)
+        about = EXTRA_ABOUT.get(Path(name).stem)
+        if about is not None:
+            result.notes.append(f"{about}: {path}")
+    header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"
+    body = yaml.safe_dump(cfg.to_dict(), sort_keys=False)
+    result.config = od.write(CONFIG_FILE, (header + body).encode())
