@@ -20,7 +20,7 @@ from scan2terrain.filters.registry import FILTERS as _FILTER_REGISTRY
 # its ``choices=`` from them, and :meth:`Config.validate` checks every field typed with one.
 UnknownPolicy = Literal["free", "obstacle", "height"]
 Simulator = Literal["gz", "classic", "both"]
-Geometry = Literal["auto", "heightmap", "mesh", "boxes", "polylines"]
+Geometry = Literal["auto", "heightmap", "mesh", "boxes", "polylines", "voxels"]
 GridKind = Literal["occupancy", "height"]
 HeightStat = Literal["max", "min", "mean"]
 Fill = Literal["none", "nearest", "idw"]
@@ -115,6 +115,14 @@ class WorldConfig:
     #: Outline simplification for mesh/polylines: staircases straightened within this many
     #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
     simplify: float = 0.0
+    #: voxels: the side of the cubes (metres) the voxel mesh is cut into, one collision and
+    #: visual each (bounded meshes keep Gazebo's mesh loading and broadphase fast).
+    chunk: float = 16.0
+    #: voxels: refuse (before writing) a world of more triangles than this.
+    max_triangles: int = 20_000_000
+    #: voxels: occupied voxels in 3D connected components (26-connected) of fewer voxels than
+    #: this are left out; 0 or 1 keeps all.
+    min_voxels: int = 0
 
 
 @dataclass
@@ -288,7 +296,29 @@ class Config:
         _check(
             0 <= w.simplify < float("inf"), "world.simplify", w.simplify, ">= 0 metres (0: exact)"
         )
-        walls = w.geometry not in ("auto", "heightmap")
+        walls = w.geometry not in ("auto", "heightmap", "voxels")
+        _check(0 < w.chunk <= MAX_METRES, "world.chunk", w.chunk, f"in (0, {MAX_METRES:g}] metres")
+        _check(w.max_triangles >= 1, "world.max_triangles", w.max_triangles, ">= 1")
+        _check(w.min_voxels >= 0, "world.min_voxels", w.min_voxels, ">= 0")
+        voxels = w.geometry == "voxels"
+        _check(
+            not voxels or c.octree.grid == "occupancy",
+            "octree.grid",
+            c.octree.grid,
+            "occupancy with world.geometry voxels (the voxels themselves are the world)",
+        )
+        _check(
+            not voxels or c.terrain.unknown == "free",
+            "terrain.unknown",
+            c.terrain.unknown,
+            "free with world.geometry voxels (unknown voxels are empty space)",
+        )
+        _check(
+            not voxels or not (c.stream.enabled or c.stream.workers or c.stream.scheduler),
+            "world.geometry",
+            w.geometry,
+            "not voxels with --stream, --workers or --scheduler (streaming keeps no voxels)",
+        )
         _check(
             not walls or c.terrain.unknown != "height",
             "terrain.unknown",

@@ -204,9 +204,20 @@ def filter_text(cfg: Config) -> str:
     return text
 
 
+def no_voxels(cfg: Config, what: str) -> None:
+    """Refuse ``world.geometry voxels``, before any work, for commands that hold no voxels."""
+    if cfg.world.geometry == "voxels":
+        raise ConfigError(
+            f"world.geometry voxels meshes an octree's voxels (octree2world, bag2world,"
+            f" cloud2world); {what} has no third dimension: use mesh, boxes, polylines or"
+            " heightmap"
+        )
+
+
 def heightmap_only(cfg: Config, what: str) -> Config:
     """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
     refuses wall geometries and what no heightmap can be (:func:`heightmap_options`)."""
+    no_voxels(cfg, what)
     cfg = cfg.for_grid("heights")
     heightmap_options(cfg)
     if cfg.world.geometry != "heightmap":

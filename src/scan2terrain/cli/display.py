@@ -121,7 +121,10 @@ def report(result: Result) -> str:
     side = f"{result.heightmap_side}x{result.heightmap_side} px"
     ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
     lines = [
-        f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
+        f"Wrote {out}/ (voxels: {result.walls}; {result.size_z:g} m from the lowest to the"
+        " highest voxel)"
+        if result.geometry == "voxels"
+        else f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
         if walls
         else f"Wrote {out}/ ({ground} at {result.resolution:g} m/px, heights up to "
         f"{result.size_z:g} m)"

@@ -149,8 +149,9 @@ def geometry_options(p: argparse.ArgumentParser) -> None:
         help="how occupied cells become walls: one extruded mesh (STL/DAE/OBJ; exact, and the "
         "fastest in physics), the fewest boxes that cover them, SDF polylines, or a heightmap "
         "(slowest; 1-cell walls are knife edges); auto: mesh for occupancy grids, "
-        "heightmap for height grids; map frame = world frame in both simulators for all but "
-        "heightmap (README: which geometry to pick)",
+        "heightmap for height grids; voxels (octree2world, bag2world, cloud2world): the "
+        "occupied voxels themselves in 3D, overhangs and doorways kept; map frame = world "
+        "frame in both simulators for all but heightmap (README: which geometry to pick)",
     )
     g.add_argument(
         "--simplify",
@@ -158,6 +159,30 @@ def geometry_options(p: argparse.ArgumentParser) -> None:
         dest="world.simplify",
         help="metres: straighten mesh/polyline outlines within this tolerance, keeping every "
         "cell on its side (0: cell edges)",
+    )
+
+
+def voxel_options(p: argparse.ArgumentParser) -> None:
+    """Options of --geometry voxels (the commands that hold voxels)."""
+    g = p.add_argument_group("voxels (--geometry voxels)")
+    g.add_argument(
+        "--chunk",
+        type=float,
+        dest="world.chunk",
+        help="metres: the voxel mesh is cut into cubes this size, one collision and visual each",
+    )
+    g.add_argument(
+        "--max-triangles",
+        type=int,
+        dest="world.max_triangles",
+        help="refuse a voxel world of more triangles than this",
+    )
+    g.add_argument(
+        "--min-voxels",
+        type=int,
+        dest="world.min_voxels",
+        help="leave out occupied voxels in 3D components (26-connected) of fewer voxels "
+        "(0: keep all)",
     )
 
 

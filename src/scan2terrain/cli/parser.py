@@ -16,6 +16,7 @@ from scan2terrain.cli.options import (
     scan_options,
     stream_options,
     unknown_options,
+    voxel_options,
 )
 from scan2terrain.config import (
     load_config,
@@ -108,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(t)
     geometry_options(t)
     octree_options(t)
+    voxel_options(t)
     progress_option(t)
     bag_commands(sub)
     dem_command(sub)
@@ -160,6 +162,7 @@ def bag_commands(sub: Any) -> None:
     common(b)
     geometry_options(b)
     octree_options(b)
+    voxel_options(b)
     scan_options(b, bag=True)
     stream_options(b)
     progress_option(b)
@@ -188,6 +191,7 @@ def bag_commands(sub: Any) -> None:
     common(c)
     geometry_options(c)
     octree_options(c)
+    voxel_options(c)
     scan_options(c, bag=False)
     stream_options(c)
     progress_option(c)

@@ -36,6 +36,7 @@ from scan2terrain.steps import (
     heightmap_only,
     heightmap_options,
     make_preview,
+    no_voxels,
     place_on_canvas,
     refuse_existing,
     spawn_for,
@@ -62,6 +63,7 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     from scan2terrain.readers import read_map_yaml
 
     refuse_existing(out, overwrite, (yaml_path,))
+    no_voxels(cfg, "map2world")
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     refuse_existing(out, overwrite, (meta.image,))  # the image may live elsewhere
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)

@@ -99,6 +99,7 @@ def voxels_world(
     centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_world`;
     ``runs``: each key starts a vertical run of that many voxels (pruned leaves)."""
     from scan2terrain.grids import projection
+    from scan2terrain.grids.occupied import occupied_voxels
 
     extra = dict(extra or {})
     if len(keys) == 0:
@@ -108,10 +109,17 @@ def voxels_world(
         from scan2terrain.exporters.pointcloud import points_bytes
         from scan2terrain.octree.keys import key_to_coord
 
+        solid = occupied_voxels(keys, occupied, runs, source, why="--points")
         extra[f"occupied_voxels.{o.points}"] = points_bytes(
-            key_to_coord(_occupied_voxels(keys, occupied, runs, source), resolution),
-            f".{o.points}",
+            key_to_coord(solid, resolution), f".{o.points}"
         )
+    if cfg.world.geometry == "voxels":
+        from scan2terrain.world.voxels import voxel_mesh_world
+
+        return voxel_mesh_world(
+            keys, occupied, resolution, source=source, out=out, cfg=cfg, overwrite=overwrite,
+            extra=extra, start=start, runs=runs,
+        )  # fmt: skip
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
     # Size the grid before allocating it (its columns span the keys' x and y range).
@@ -129,33 +137,6 @@ def voxels_world(
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
     heights = fill_holes(stats.to_height_grid(o.height_stat), cfg)
     return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start)
-
-
-#: Most occupied voxel centres written by ``--points`` (12 bytes each in memory, 24 in PLY).
-MAX_POINTS = 50_000_000
-
-
-def _occupied_voxels(
-    keys: NDArray[np.uint16],
-    occupied: NDArray[np.bool_],
-    runs: NDArray[np.uint16] | None,
-    source: Path,
-) -> NDArray[np.uint16]:
-    """Keys of every occupied voxel, runs expanded (counted first, refused past MAX_POINTS)."""
-    picked = keys[occupied]
-    if runs is None:
-        return picked
-    lengths = runs[occupied].astype(np.int64)
-    if int(lengths.sum()) > MAX_POINTS:
-        raise InputError(
-            source,
-            f"--points: the tree's occupied leaves hold {int(lengths.sum())} voxels, more than "
-            f"{MAX_POINTS}; leave out --points",
-        )
-    out = np.repeat(picked, lengths, axis=0)
-    starts = np.cumsum(lengths) - lengths
-    out[:, 2] += (np.arange(len(out)) - np.repeat(starts, lengths)).astype(np.uint16)
-    return out
 
 
 def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None) -> VoxelOctree:

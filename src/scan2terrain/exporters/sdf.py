@@ -261,6 +261,7 @@ class Ground:
     centre: tuple[float, float]
     size: tuple[float, float]
     yaw: float = 0.0
+    z: float = 0.0  #: the top of the slab and the plane (voxel worlds: under the lowest voxel)
 
 
 def walls_placement(
@@ -287,11 +288,11 @@ def _walls_model(
     # and Bullet's cylinder-box contacts against it are off by centimetres in places (a wheel
     # sank 4.4 cm into Willow Garage's floor); against a box the size of the map they are exact.
     collision = _sub(link, "collision", name="ground_collision")
-    _sub(collision, "pose", _fmt(cx, cy, -GROUND_THICKNESS / 2, 0, 0, ground.yaw))
+    _sub(collision, "pose", _fmt(cx, cy, ground.z - GROUND_THICKNESS / 2, 0, 0, ground.yaw))
     slab = (*(side + 2 * GROUND_MARGIN for side in ground.size), GROUND_THICKNESS)
     _sub(_sub(_sub(collision, "geometry"), "box"), "size", _fmt(*slab))
     visual = _sub(link, "visual", name="ground_visual")
-    _sub(visual, "pose", _fmt(cx, cy, 0, 0, 0, ground.yaw))
+    _sub(visual, "pose", _fmt(cx, cy, ground.z, 0, 0, ground.yaw))
     plane = _sub(_sub(visual, "geometry"), "plane")
     _sub(plane, "normal", "0 0 1")
     _sub(plane, "size", _fmt(*ground.size))
@@ -320,6 +321,23 @@ def mesh_model_sdf(p: Placement, ground: Ground, *, comment: str) -> bytes:
         _sub(_sub(_sub(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
         if kind == "visual":
             _material(el, WALL_RGB)
+    return _bytes(sdf)
+
+
+def voxels_model_sdf(
+    p: Placement, ground: Ground, stems: list[str], *, comment: str, coloured: bool = False
+) -> bytes:
+    """``model.sdf`` for a voxel world: one static link holding the ground and, per chunk
+    ``meshes/<stem>``, a collision (``.stl``) and a visual (``.dae``), in map coordinates.
+    ``coloured``: the DAE carries the voxels' colours (no material is set over them)."""
+    sdf, link = _walls_model(p, ground, comment)
+    for stem in stems:
+        base = f"model://{p.model_name}/{MESH_DIR}/{stem}"
+        for kind, ext in (("collision", "stl"), ("visual", "dae")):
+            el = _sub(link, kind, name=f"{stem}_{kind}")
+            _sub(_sub(_sub(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
+            if kind == "visual" and not coloured:
+                _material(el, WALL_RGB)
     return _bytes(sdf)
 
 

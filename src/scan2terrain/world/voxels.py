@@ -1,0 +1,195 @@
+"""Voxel worlds (``world.geometry: voxels``): the occupied voxels themselves as static mesh
+geometry (geometry/voxel_mesh.py), cut into chunks, on a ground slab under the lowest voxel,
+written in map coordinates and handed to the one writer.
+
+What the world holds, in the map (= world) frame, metres:
+
+* every occupied voxel whose centre lies in ``[octree.z_min, octree.z_max]``, exactly (a point
+  is inside the meshes iff it is inside an occupied voxel, up to the hair that keeps solids
+  touching at an edge or a corner apart); unknown and free voxels are empty space;
+* a ground slab (``GROUND_THICKNESS`` thick, ``GROUND_MARGIN`` wider all round) whose top is
+  the bottom of the lowest voxels (:data:`GROUND_QUANTILE`), so a robot never falls into
+  unknown space;
+* map/: octomap_server's projection of the voxels in the z band, or, without a band, of those
+  between 0.3 m and 2 m above the ground (the obstacles a ground robot meets; the floor
+  itself would mark every cell occupied), lined up with the world;
+* spawn.yaml: a free spot on the floor (the highest voxel top within 0.3 m of the ground).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import InputError
+from scan2terrain.exporters import sdf
+from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.octree.keys import KEY_OFFSET
+from scan2terrain.steps import Preview, spawn_for
+from scan2terrain.types import FREE, OCCUPIED, Start
+from scan2terrain.world.folder import (
+    Result,
+    SimWorld,
+    WorldFolder,
+    map_notes,
+    spawn_comment,
+    spawn_pose,
+    write_world_folder,
+)
+from scan2terrain.world.names import unique_name
+
+#: The floor a spawn stands on and the obstacles map/ shows, above the ground (metres).
+FLOOR_BAND = 0.3
+OBSTACLE_TOP = 2.0
+#: The ground is the bottom of the voxel layer below which lie fewer than this share of the
+#: voxels: a few stray voxels under the floor (geb079.bt has one, 16 cm below) do not lower it.
+GROUND_QUANTILE = 0.001
+#: Most occupied voxels meshed: meshing holds about 2 KB a voxel at its peak today (10 M voxels
+#: took 20 GB), so larger sets are refused before any work instead of exhausting memory.
+MAX_MESH_VOXELS = 4_000_000
+
+
+def voxel_mesh_world(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    resolution: float,
+    *,
+    source: Path,
+    out: Path,
+    cfg: Config,
+    overwrite: bool,
+    extra: dict[str, bytes] | None = None,
+    start: Start | None = None,
+    runs: NDArray[np.uint16] | None = None,
+) -> Result:
+    """Known voxels (OctoMap keys, occupied or free; ``runs`` as in grids.projection) to a world
+    whose geometry is the occupied voxels in the z band (see the module docstring)."""
+    from scan2terrain.exporters import meshfile
+    from scan2terrain.exporters.preview import preview_png
+    from scan2terrain.geometry.voxel_mesh import TooManyTriangles, mesh_voxels
+    from scan2terrain.grids.occupied import occupied_voxels
+    from scan2terrain.grids.projection import column_stats, project_occupancy
+
+    o, w = cfg.octree, cfg.world
+    solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
+    z_min = -math.inf if o.z_min is None else o.z_min
+    z_max = math.inf if o.z_max is None else o.z_max
+    centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
+    solid = solid[(centre_z >= z_min) & (centre_z <= z_max)]
+    if len(solid) == 0:
+        raise InputError(source, "no occupied voxel in the z band: nothing to make a world of")
+    if len(solid) > MAX_MESH_VOXELS:
+        raise InputError(
+            source,
+            f"{len(solid)} occupied voxels in the z band, more than the {MAX_MESH_VOXELS} that"
+            " --geometry voxels meshes: choose a coarser --resolution or a narrower"
+            " --z-min/--z-max band",
+        )
+    lattice = solid.astype(np.int64) - KEY_OFFSET
+    kept = len(lattice)
+    if w.min_voxels > 1:
+        from scan2terrain.filters.voxels3d import remove_small_components
+
+        lattice = lattice[remove_small_components(lattice, w.min_voxels)]
+        if len(lattice) == 0:
+            raise InputError(
+                source, f"every occupied voxel is in a component under world.min_voxels"
+                f" {w.min_voxels}: nothing is left"
+            )  # fmt: skip
+    cells = max(1, round(w.chunk / resolution))
+    try:
+        chunks = mesh_voxels(lattice, resolution, chunk_cells=cells, max_triangles=w.max_triangles)
+    except TooManyTriangles as exc:
+        raise InputError(
+            source,
+            f"the voxel meshes would hold {exc.count} triangles, over world.max_triangles"
+            f" {exc.limit}: raise it (--max-triangles), choose a coarser --resolution or a"
+            " narrower --z-min/--z-max band",
+        ) from exc
+    # The ground: a slab under the lowest voxels, over the voxels' extent.
+    lo = lattice.min(axis=0) * resolution
+    hi = (lattice.max(axis=0) + 1) * resolution
+    layers = np.sort(lattice[:, 2])
+    z_ground = float(layers[int(GROUND_QUANTILE * len(layers))] * resolution)
+    ground = sdf.Ground(
+        (float(lo[0] + hi[0]) / 2, float(lo[1] + hi[1]) / 2),
+        (float(hi[0] - lo[0]), float(hi[1] - lo[1])),
+        z=z_ground,
+    )
+    # map/ and the spawn: the projection of the obstacles, and the floor's height.
+    band = (z_min, z_max) if (o.z_min, o.z_max) != (None, None) else (
+        z_ground + FLOOR_BAND, z_ground + OBSTACLE_TOP
+    )  # fmt: skip
+    map_out = project_occupancy(keys, occupied, resolution, z_min=band[0], z_max=band[1], runs=runs)
+    floor = column_stats(
+        keys, occupied, resolution, z_min=z_ground, z_max=z_ground + FLOOR_BAND, runs=runs
+    )
+    floor_top = np.where(floor.known, floor.max_z + resolution / 2, z_ground)
+    walls = map_out.data == OCCUPIED
+    spawn = spawn_for(
+        np.where(walls, z_ground + OBSTACLE_TOP, floor_top).astype(np.float64),
+        resolution,
+        map_out.origin,
+        start,
+        ground=~walls,
+        free=map_out.data == FREE,
+    )
+    triangles = sum(len(c.mesh.faces) for c in chunks)
+    summary = (
+        f"{len(lattice)} occupied voxels of {resolution!r} m in {len(chunks)} chunks of up to"
+        f" {cells * resolution:g} m, {triangles} triangles"
+    )
+    described = (
+        f" Generated by scan2terrain from {source.name}: {summary}, on a ground slab whose top"
+        f" is z = {z_ground!r} (under the lowest voxels). Unknown and free voxels are"
+        " empty space. Map frame (x, y, z) = world (x, y, z) in gz-sim and Gazebo Classic.\n"
+    )
+    files: dict[str, bytes] = {}
+    stems = []
+    for c in chunks:
+        stem = "voxels_" + "_".join(str(i) for i in c.index)
+        stems.append(stem)
+        base = f"{sdf.MESH_DIR}/{stem}"
+        files[f"{base}.stl"] = meshfile.stl_bytes(c.mesh)
+        files[f"{base}.dae"] = meshfile.dae_bytes(c.mesh, stem)
+        files[f"{base}.obj"] = meshfile.obj_bytes(c.mesh)
+    payload = repr(("voxels", resolution, w.chunk, w.min_voxels, band)).encode()
+    base_name = unique_name(source, lattice.tobytes() + payload, cfg)
+    size_z = float(hi[2] - lo[2])
+    result = Result(
+        out=out, resolution=resolution, size_z=size_z, geometry="voxels", walls=summary,
+        spawn=spawn, preview_label="the 2D projection (map/)",
+    )  # fmt: skip
+    if kept != len(lattice):
+        result.notes.append(
+            f"{kept - len(lattice)} voxels in components under {w.min_voxels} voxels left out"
+        )
+    if (o.z_min, o.z_max) == (None, None):
+        result.notes.append(
+            f"map/: the voxels {FLOOR_BAND:g} to {OBSTACLE_TOP:g} m above the ground at z ="
+            f" {z_ground:g} (no --z-min/--z-max)"
+        )
+    result.notes.extend(map_notes(cfg, map_out))
+    sims = (GZ, CLASSIC) if w.simulator == "both" else (w.simulator,)
+    parts = []
+    for sim in sims:
+        name = base_name if sim == GZ or len(sims) == 1 else f"{base_name}_classic"
+        p = sdf.walls_placement(sim, name, "voxels", ground, size_z)
+        model = {f"models/{name}/{rel}": data for rel, data in files.items()}
+        model[f"models/{name}/model.sdf"] = sdf.voxels_model_sdf(
+            p, ground, stems, comment=described
+        )
+        model[f"models/{name}/model.config"] = sdf.model_config(p, f"Voxels from {source.name}")
+        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
+        world = sdf.world_sdf(
+            p, world_name="scan2terrain", comment=described + spawn_comment(spawn, pose)
+        )
+        parts.append(SimWorld(p, model, world, (0.0, 0.0), described, pose))
+    preview = Preview(preview_png(map_out.data, None, occupancy=True), result.preview_label)
+    # The projection is in world axes already (yaw 0, on voxel boundaries).
+    folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)

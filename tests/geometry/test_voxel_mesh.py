@@ -1,0 +1,154 @@
+"""Voxel meshes (--geometry voxels): closed, 2-manifold, exact, checked with trimesh (an
+independent reader that welds equal positions, as STL readers do)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from scan2terrain.geometry.voxel_mesh import (
+    SPLIT,
+    SPLIT_MAX,
+    TooManyTriangles,
+    VoxelChunk,
+    mesh_voxels,
+)
+
+
+def _edges_used_twice(chunk: VoxelChunk) -> bool:
+    f = chunk.mesh.faces
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, count = np.unique(e, axis=0, return_counts=True)
+    return bool((count == 2).all())
+
+
+def _check(keys: np.ndarray, r: float = 1.0, chunk: int | None = None) -> list[VoxelChunk]:
+    chunks = mesh_voxels(keys, r, chunk_cells=chunk)
+    assert sum(c.voxels for c in chunks) == len(keys)
+    volume = area = 0.0
+    for c in chunks:
+        assert _edges_used_twice(c), c.index
+        m = trimesh.Trimesh(c.mesh.vertices, c.mesh.faces, process=True)  # welds positions
+        assert m.is_watertight and m.is_winding_consistent, c.index
+        assert m.volume > 0  # outward normals
+        volume += m.volume
+        area += m.area
+    # Exact up to the hair moves at edge and corner contacts: no vertex moves farther than the
+    # hair, so the volume changes by at most the hair times the surface's area.
+    hair = min(SPLIT * r, SPLIT_MAX)
+    assert abs(volume - len(keys) * r**3) <= hair * area + 1e-9
+    return chunks
+
+
+def _cells_around(keys: np.ndarray) -> np.ndarray:
+    """Every voxel of the keys' bounding box grown by one."""
+    axes = [np.arange(a, b) for a, b in zip(keys.min(0) - 1, keys.max(0) + 2, strict=True)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def _inside(chunks: list[VoxelChunk], points: np.ndarray) -> np.ndarray:
+    inside = np.zeros(len(points), bool)
+    for c in chunks:
+        m = trimesh.Trimesh(c.mesh.vertices, c.mesh.faces, process=True)
+        inside |= m.contains(points)
+    return inside
+
+
+@pytest.mark.parametrize(
+    "keys",
+    [
+        [[0, 0, 0]],
+        [[0, 0, 0], [1, 0, 0]],
+        [[0, 0, 0], [1, 1, 0]],  # along an edge only
+        [[0, 0, 0], [1, 1, 1]],  # at a corner only
+        [[0, 0, 0], [1, 1, 0], [1, 0, 1], [0, 1, 1]],  # a checkerboard: four corner contacts
+        # two voxels meeting along an edge under a common roof (a pinched saddle)
+        [[0, 0, 0], [1, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]],
+        [[x, y, z] for x in range(3) for y in range(3) for z in range(3) if (x, y, z) != (1, 1, 1)],
+    ],
+)
+def test_hand_made_sets_are_closed_manifold_and_exact(keys: list[list[int]]) -> None:
+    k = np.array(keys)
+    chunks = _check(k)
+    lo, hi = k.min(0) - 1, k.max(0) + 2
+    grid = np.stack(
+        np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi, strict=True)], indexing="ij"), -1
+    )
+    cells = grid.reshape(-1, 3)
+    occupied = {tuple(v) for v in k}
+    expect = np.array([tuple(c) in occupied for c in cells])
+    assert (_inside(chunks, cells + 0.5) == expect).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(2, 6),
+    st.floats(0.2, 0.8),
+    st.sampled_from([None, 1, 2, 3]),
+)
+def test_random_voxel_sets(seed: int, side: int, fill: float, chunk: int | None) -> None:
+    rng = np.random.default_rng(seed)
+    keys = np.argwhere(rng.random((side, side, side)) < fill) - rng.integers(-3, 3, 3)
+    if len(keys) == 0:
+        return
+    chunks = _check(keys, 0.1, chunk)
+    # Voxelised back: the centres of occupied voxels are inside, the others outside.
+    lo, hi = keys.min(0) - 1, keys.max(0) + 2
+    cells = np.stack(
+        np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi, strict=True)], indexing="ij"), -1
+    )
+    cells = cells.reshape(-1, 3)
+    occupied = {tuple(v) for v in keys}
+    expect = np.array([tuple(c) in occupied for c in cells])
+    assert (_inside(chunks, (cells + 0.5) * 0.1) == expect).all()
+
+
+def test_greedy_merging_and_chunks() -> None:
+    block = np.argwhere(np.ones((10, 10, 10), bool))
+    one = _check(block, 0.05)
+    assert len(one) == 1 and len(one[0].mesh.faces) == 12  # a cube: 2 triangles a side
+    cut = _check(block, 0.05, chunk=4)
+    assert len(cut) == 27 and [c.index for c in cut] == sorted(c.index for c in cut)
+    assert sum(c.voxels for c in cut) == 1000
+
+
+def test_origin_resolution_labels_and_budget() -> None:
+    keys = np.array([[0, 0, 0], [1, 0, 0]])
+    (c,) = mesh_voxels(keys, 0.5, origin=(10.0, 20.0, 30.0))
+    assert c.mesh.vertices.min(0).tolist() == [10.0, 20.0, 30.0]
+    assert c.mesh.vertices.max(0).tolist() == [11.0, 20.5, 30.5]
+    (labelled,) = mesh_voxels(keys, 1.0, labels=np.array([3, 7]))
+    assert set(labelled.face_labels.tolist()) == {3, 7}  # not merged across labels
+    assert len(labelled.mesh.faces) > len(c.mesh.faces)
+    with pytest.raises(TooManyTriangles) as err:
+        mesh_voxels(keys, 1.0, max_triangles=5)
+    assert err.value.count == 12
+
+
+@pytest.mark.parametrize(
+    ("keys", "kwargs", "match"),
+    [
+        (np.zeros((2, 2), int), {}, "shape"),
+        (np.zeros((2, 3)), {}, "integer"),
+        (np.zeros((2, 3), int), {}, "unique"),
+        (np.zeros((1, 3), int), {"chunk_cells": 0}, "chunk_cells"),
+    ],
+)
+def test_bad_arguments(keys: np.ndarray, kwargs: dict[str, int], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        mesh_voxels(keys, 1.0, **kwargs)
+
+
+def test_empty_and_deterministic() -> None:
+    assert mesh_voxels(np.zeros((0, 3), int), 1.0) == []
+    rng = np.random.default_rng(3)
+    keys = np.argwhere(rng.random((8, 8, 8)) < 0.5)
+    a = mesh_voxels(keys, 0.05, chunk_cells=3)
+    b = mesh_voxels(keys[rng.permutation(len(keys))], 0.05, chunk_cells=3)
+    for x, y in zip(a, b, strict=True):
+        assert np.array_equal(x.mesh.vertices, y.mesh.vertices)
+        assert np.array_equal(x.mesh.faces, y.mesh.faces)

@@ -1,0 +1,177 @@
+"""--geometry voxels: the occupied voxels themselves as the world, checked with trimesh, with
+Gazebo's own parser and mesh loader (tests/gazebo_harness.py) and in gz-sim's physics
+(tests/physics_harness.py) on a synthetic place with a table, an overhang, a doorway and two
+floors; and the refusals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+import yaml
+
+from scan2terrain.cli import main
+from tests.conftest import FIXTURES
+from tests.gazebo_harness import probe_shapes
+from tests.physics_harness import drive_robot, drop_probes
+
+R = 0.1  # voxel side of the synthetic scene
+GEB079 = FIXTURES / "octomap/geb079.bt"
+
+
+def _box(x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> np.ndarray:
+    """Voxel keys (on the R lattice) filling a box given in metres."""
+    axes = [np.arange(round(a / R), round(b / R)) for a, b in (x, y, z)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def scene() -> np.ndarray:
+    """A floor (top at z = 0), a table (top 0.7-0.8 m), an overhang (1.2-1.3 m, nothing under
+    it), a wall at x = 5 with a doorway 1.2 m wide and 2 m high, and a second floor at 3 m."""
+    parts = [
+        _box((0, 6), (0, 4), (-0.1, 0)),  # floor
+        _box((1, 2), (1, 2), (0.7, 0.8)),  # table top
+        *[_box((x, x + 0.1), (y, y + 0.1), (0, 0.7)) for x in (1, 1.9) for y in (1, 1.9)],
+        _box((3, 4.5), (0, 1), (1.2, 1.3)),  # overhang, held by a post at its far corner
+        _box((4.4, 4.5), (0.9, 1), (0, 1.2)),
+        _box((5, 5.1), (0, 1.4), (0, 2.5)),  # wall, doorway y 1.4-2.6 under 2 m
+        _box((5, 5.1), (2.6, 4), (0, 2.5)),
+        _box((5, 5.1), (1.4, 2.6), (2.0, 2.5)),
+        _box((0, 2), (2.5, 4), (3.0, 3.1)),  # second floor
+    ]
+    return np.unique(np.concatenate(parts), axis=0)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    tmp = tmp_path_factory.mktemp("voxels")
+    keys = scene()
+    cloud = tmp / "scene.xyz"
+    np.savetxt(cloud, (keys + 0.5) * R, fmt="%.3f")
+    out = tmp / "world"
+    args = ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels"]
+    assert main([*args, "--resolution", str(R), "--simulator", "gz", "--chunk", "2", "-q"]) == 0
+    return out, keys
+
+
+def _stls(out: Path) -> list[Path]:
+    """The chunks of the gz-sim model (with --simulator both, Classic's model repeats them)."""
+    return sorted(
+        p for p in (out / "models").glob("*/meshes/*.stl") if not p.parts[-3].endswith("_classic")
+    )
+
+
+def test_the_meshes_hold_exactly_the_voxels(built: tuple[Path, np.ndarray]) -> None:
+    out, keys = built
+    stls = _stls(out)
+    assert len(stls) > 1  # cut into 2 m chunks
+    volume = 0.0
+    inside = np.zeros(len(keys), bool)
+    probe = np.array([[1.5, 1.5, 0.4], [3.7, 0.5, 0.6], [5.05, 2.0, 1.0], [1.0, 3.0, 1.5]])
+    outside = np.zeros(len(probe), bool)
+    for stl in stls:
+        m = trimesh.load(stl)
+        assert m.is_watertight and m.is_winding_consistent, stl.name
+        volume += m.volume
+        inside |= m.contains((keys + 0.5) * R)
+        outside |= m.contains(probe)
+    assert volume == pytest.approx(len(keys) * R**3, rel=1e-3)
+    assert inside.all()  # every voxel centre is inside a chunk
+    assert not outside.any()  # under the table, under the overhang, the doorway, between floors
+    spawn = yaml.safe_load((out / "spawn.yaml").read_text())
+    assert spawn is not None
+
+
+def test_gazebo_parses_the_world_and_loads_every_chunk(
+    built: tuple[Path, np.ndarray], tmp_path: Path
+) -> None:
+    out, _ = built
+    _, shapes = probe_shapes(out / "world_gz.sdf", [out / "models"], tmp_path)
+    meshes = [s for s in shapes if s.type == "mesh"]
+    assert len(meshes) == 2 * len(_stls(out))  # a collision and a visual per chunk
+    assert all(s.mesh_loaded for s in meshes)
+    lo = np.min([s.mesh_min for s in meshes if s.kind == "collision"], axis=0)
+    hi = np.max([s.mesh_max for s in meshes if s.kind == "collision"], axis=0)
+    assert lo == pytest.approx([0, 0, -0.1], abs=2e-3)
+    assert hi == pytest.approx([6, 4, 3.1], abs=2e-3)
+
+
+def test_in_gz_sim_physics(built: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    out, _ = built
+    world, models = out / "world_gz.sdf", [out / "models"]
+    # On the table, beside it, under the overhang (dropped from below it), on the overhang.
+    points = [(1.5, 1.5), (0.5, 0.5), (3.7, 0.5), (2.5, 3.0)]
+    drops = drop_probes(world, models, points, tmp_path, z=0.95)
+    table, floor, under, beside = (d.height for d in drops)
+    assert table == pytest.approx(0.8, abs=0.01)
+    assert floor == pytest.approx(0.0, abs=0.01)
+    assert under == pytest.approx(0.0, abs=0.01)  # the overhang above does not stop it
+    assert beside == pytest.approx(0.0, abs=0.01)
+    assert min(d.min_z for d in drops) > -0.1  # nothing below the ground
+    (roof,) = drop_probes(world, models, [(3.7, 0.5)], tmp_path, z=2.0)
+    assert roof.height == pytest.approx(1.3, abs=0.01)
+    # A robot driven at the doorway passes it; one driven at the wall beside it stops.
+    through = drive_robot(world, models, (3.9, 2.0, 0.0), tmp_path, distance=2.5)
+    assert through.advance > 2.0
+    blocked = drive_robot(world, models, (3.9, 0.6, 0.0), tmp_path, distance=2.5)
+    assert blocked.advance < 5.0 - (3.9 + 0.495) + 0.02
+    assert through.result.shapes_failed == 0 and blocked.result.shapes_failed == 0
+
+
+def test_geb079_voxel_world(tmp_path: Path) -> None:
+    out = tmp_path / "geb"
+    assert main(["octree2world", str(GEB079), "-o", str(out), "--geometry", "voxels", "-q"]) == 0
+    stls = _stls(out)
+    triangles = 0
+    for stl in stls:
+        m = trimesh.load(stl)
+        assert m.is_watertight and m.is_winding_consistent, stl.name
+        triangles += len(m.faces)
+    voxels = 185673  # geb079's occupied voxels, runs expanded
+    assert triangles < 12 * voxels / 4  # far fewer than a cube per voxel
+    cfg = yaml.safe_load((out / "scan2terrain.yaml").read_text())
+    assert cfg["world"]["geometry"] == "voxels"
+
+
+def _refused(capsys: pytest.CaptureFixture[str], args: list[str], out: Path, match: str) -> None:
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--max-triangles", "100"], "over world.max_triangles 100"),
+        (["--z-min", "50", "--z-max", "60"], "no occupied voxel in the z band"),
+        (["--grid", "height"], "octree.grid"),
+        (["--unknown", "obstacle"], "terrain.unknown"),
+        (["--min-voxels", "10000000"], "world.min_voxels"),
+    ],
+)
+def test_refusals(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], match: str
+) -> None:
+    out = tmp_path / "w"
+    args = ["octree2world", str(GEB079), "-o", str(out), "--geometry", "voxels", *extra]
+    _refused(capsys, args, out, match)
+
+
+def test_voxels_refused_where_there_are_none(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "w"
+    yaml_path = FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"
+    _refused(capsys, ["map2world", str(yaml_path), "-o", str(out), "--geometry", "voxels"], out,
+             "no third dimension")  # fmt: skip
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("world:\n  geometry: voxels\n")
+    image = FIXTURES / "images/heightmap_png_bowl/heightmap_bowl.png"
+    _refused(capsys, ["image2world", str(image), "-o", str(out), "--config", str(cfg)], out,
+             "no third dimension")  # fmt: skip
+    cloud = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    _refused(capsys, ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels",
+                      "--stream"], out, "streaming keeps no voxels")  # fmt: skip
