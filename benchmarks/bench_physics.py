@@ -1,6 +1,6 @@
 """Load time and real-time factor of our worlds in gz-sim's physics (by hand, not a test).
 
-    python benchmarks/bench_physics.py [--quick] [--repeat N] [--keep DIR]
+    python benchmarks/bench_physics.py [--quick] [--repeat N] [--keep DIR] [--only voxels]
 
 Worlds: an empty ground plane (the reference), and the four fixture maps (Willow Garage,
 warehouse, Levine, TurtleBot3 world; fixtures/maps/) written by the
@@ -66,6 +66,12 @@ MAPS = {
     "tb3": REPO / "fixtures/maps/map_tb3_world_mapsaver/map.yaml",
 }
 GEOMETRIES = ("heightmap", "mesh", "boxes", "polylines")
+#: Voxel worlds (--geometry voxels, issue 15): OctoMap's building and corridor scans.
+VOXEL_WORLDS = {
+    "geb079 voxels": ["octree2world", str(REPO / "fixtures/octomap/geb079.bt")],
+    "fr079 voxels": ["octree2world", str(REPO / "fixtures/octomap/scan.dat.bz2"),
+                     "--resolution", "0.1"],
+}  # fmt: skip
 PLANE_WORLD = """<?xml version="1.0"?>
 <sdf version="1.9">
   <world name="plane">
@@ -94,6 +100,7 @@ class World:
     model_dirs: list[Path]
     robot: tuple[float, float, float]  # x, y, yaw
     boxes: list[tuple[float, float]]
+    z: float = 0.0  # the floor under the robot and the boxes
 
 
 def _cli() -> list[str]:
@@ -139,12 +146,15 @@ def _place(out: Path) -> tuple[tuple[float, float, float], list[tuple[float, flo
     return robot, boxes
 
 
-def build_worlds(root: Path) -> list[World]:
+def build_worlds(root: Path, only: str | None = None) -> list[World]:
+    """The empty plane and every world whose label contains ``only`` (None: all)."""
     plane = root / "plane.sdf"
     plane.write_text(PLANE_WORLD)
     worlds = [World("empty plane", plane, [], (0.0, 0.0, 0.0), [(2.0, 0.3), (-1.7, 1.1)])]
     for name, map_yaml in MAPS.items():
         for geometry in GEOMETRIES:
+            if only is not None and only not in f"{name} {geometry}":
+                continue
             out = root / f"{name}_{geometry}"
             if not (out / "world_gz.sdf").is_file():
                 cmd = [*_cli(), "map2world", str(map_yaml), "-o", str(out), "--overwrite",
@@ -156,15 +166,30 @@ def build_worlds(root: Path) -> list[World]:
             worlds.append(
                 World(f"{name} {geometry}", out / "world_gz.sdf", [out / "models"], robot, boxes)
             )
+    for label, args in VOXEL_WORLDS.items():
+        if only is not None and only not in label:
+            continue
+        out = root / label.replace(" ", "_")
+        if not (out / "world_gz.sdf").is_file():
+            cmd = [*_cli(), *args, "-o", str(out), "--overwrite", "--simulator", "gz",
+                   "--geometry", "voxels", "-q"]  # fmt: skip
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True)
+            print(f"  wrote {out.name} in {time.perf_counter() - t0:.1f} s", flush=True)
+        robot, boxes = _place(out)
+        z = float(yaml.safe_load((out / "spawn.yaml").read_text())["gz"]["pose"][2])
+        worlds.append(World(label, out / "world_gz.sdf", [out / "models"], robot, boxes, z))
     return worlds
 
 
 def scenario(world: World, with_boxes: bool, steps: int) -> Scenario:
     x, y, yaw = world.robot
-    bodies: list[Body] = [Robot("robot", x, y, 0.0, yaw, 0.3, -0.3, 0.2)]
+    z = world.z
+    bodies: list[Body] = [Robot("robot", x, y, z, yaw, 0.3, -0.3, 0.2)]
     if with_boxes:
         for i, (bx, by) in enumerate(world.boxes):
-            bodies.append(Box(f"box{i}", (0.5, 0.5, 0.1), 2.0, (bx, by, 0.0505, 0.0, 0.0, 0.0)))
+            pose = (bx, by, z + 0.0505, 0.0, 0.0, 0.0)
+            bodies.append(Box(f"box{i}", (0.5, 0.5, 0.1), 2.0, pose))
     return Scenario(bodies=bodies, steps=steps, dt=0.001)
 
 
@@ -197,7 +222,7 @@ def measure(world: World, with_boxes: bool, steps: int, repeat: int, tmp: Path) 
     if last.shapes_failed:
         notes.append(f"{last.shapes_failed} shapes failed")
     for b in last.bodies.values():
-        if b.min_z < -0.05:
+        if b.min_z < world.z - 0.05:
             notes.append(f"{b.name} fell (min z {b.min_z:.2f})")
     return Row(
         label=world.label,
@@ -217,6 +242,9 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="1,000 steps, one run each")
     parser.add_argument("--repeat", type=int, default=None, help="runs per case (default 3)")
     parser.add_argument("--keep", type=Path, default=None, help="write (and reuse) worlds here")
+    parser.add_argument(
+        "--only", default=None, help="only the worlds whose label holds this (e.g. voxels)"
+    )
     args = parser.parse_args()
     steps = 1000 if args.quick else 5000
     repeat = args.repeat or (1 if args.quick else 3)
@@ -228,7 +256,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_physics_") as tmpdir:
         root = args.keep if args.keep is not None else Path(tmpdir)
         root.mkdir(parents=True, exist_ok=True)
-        worlds = build_worlds(root)
+        worlds = build_worlds(root, args.only)
         rows: list[Row] = []
         for world in worlds:
             for with_boxes in (False, True):
