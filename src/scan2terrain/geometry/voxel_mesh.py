@@ -96,8 +96,8 @@ def mesh_voxels(
     chunk of ``chunk_cells`` voxels a side (None: one chunk), chunks in lattice order.
 
     ``labels`` (N,) keeps faces of different labels in different rectangles (and is reported
-    per triangle). Raises :class:`TooManyTriangles` before building any vertex when the meshes
-    would hold more than ``max_triangles`` triangles; ``ValueError`` for bad arguments.
+    per triangle). Raises :class:`TooManyTriangles` as soon as the meshes so far hold more than
+    ``max_triangles`` triangles; ``ValueError`` for bad arguments.
     """
     k = np.asarray(keys)
     if k.ndim != 2 or k.shape[1] != 3 or not np.issubdtype(k.dtype, np.integer):
@@ -113,35 +113,56 @@ def mesh_voxels(
         raise ValueError(f"labels must have shape ({len(k)},), got {lab.shape}")
     order = np.lexsort((k[:, 2], k[:, 1], k[:, 0]))  # one answer, whatever the input order
     k, lab = k[order], lab[order]
-    lo = k.min(axis=0).astype(np.int64)
-    vox = k.astype(np.int64) - lo + 1  # >= 1: every neighbour is >= 0
-    dims = vox.max(axis=0) + 2
-    if float(np.prod(dims.astype(np.float64))) >= 2.0**62:
+    span = k.max(axis=0).astype(np.float64) - k.min(axis=0) + 3
+    if float(np.prod(span)) >= 2.0**62:
         raise ValueError("keys span too large a range")
-    cells = int(dims.max()) if chunk_cells is None else int(chunk_cells)
-    # Chunks on the original lattice (so they do not depend on the other voxels).
+    # Chunks on the original lattice (so they do not depend on the other voxels), meshed one
+    # at a time: memory is bounded by the largest chunk, not by the whole map.
     if chunk_cells is None:
         chunk3 = np.zeros((len(k), 3), np.int64)
     else:
-        chunk3 = np.floor_divide(k.astype(np.int64), cells)
+        chunk3 = np.floor_divide(k.astype(np.int64), int(chunk_cells))
     chunk_keys, _, chunk_of = _unique_rows(chunk3 - chunk3.min(axis=0))
     chunk_keys = chunk_keys + chunk3.min(axis=0)
-    grid = _Lattice(vox, dims, chunk_of)
+    by_chunk = np.argsort(chunk_of, kind="stable")
+    bounds = np.searchsorted(chunk_of[by_chunk], np.arange(len(chunk_keys) + 1))
+    hair = min(SPLIT, SPLIT_MAX / resolution)
+    out: list[VoxelChunk] = []
+    total = 0
+    for c in range(len(chunk_keys)):
+        members = by_chunk[bounds[c] : bounds[c + 1]]
+        index = (int(chunk_keys[c, 0]), int(chunk_keys[c, 1]), int(chunk_keys[c, 2]))
+        chunk = _mesh_chunk(k[members], lab[members], index, resolution, origin, hair)
+        total += len(chunk.mesh.faces)
+        if max_triangles is not None and total > max_triangles:
+            raise TooManyTriangles(total, max_triangles)
+        out.append(chunk)
+    return out
+
+
+def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as mesh_voxels has them
+    k: NDArray[np.integer],
+    lab: NDArray[np.int64],
+    index: tuple[int, int, int],
+    resolution: float,
+    origin: tuple[float, float, float],
+    hair: float,
+) -> VoxelChunk:
+    lo = k.min(axis=0).astype(np.int64)
+    vox = k.astype(np.int64) - lo + 1  # >= 1: every neighbour is >= 0
+    dims = vox.max(axis=0) + 2
+    grid = _Lattice(vox, dims, np.zeros(len(k), np.int64))
     if len(np.unique(grid.codes)) != len(vox):
         raise ValueError("keys must be unique")
-
-    hair = min(SPLIT, SPLIT_MAX / resolution)
     faces = _exposed_faces(grid, lab)
     rects = _rectangles(faces)
     diag = _diagonals(grid, hair)
     polys = _polygons(rects, grid, diag)
-    count = int(polys.triangle_count.sum())
-    if max_triangles is not None and count > max_triangles:
-        raise TooManyTriangles(count, max_triangles)
-    return _meshes(
-        polys, grid, diag, chunk_keys=chunk_keys, resolution=resolution, origin=origin, lo=lo,
-        hair=hair,
+    (chunk,) = _meshes(
+        polys, grid, diag, chunk_keys=np.array([index]), resolution=resolution, origin=origin,
+        lo=lo, hair=hair,
     )  # fmt: skip
+    return chunk
 
 
 # --- the lattice ---------------------------------------------------------------------------
@@ -163,6 +184,10 @@ def _unique_rows(
     return table[first], first, inverse.reshape(-1)
 
 
+#: Largest chunk volume (voxels, with a border) looked up through a dense bitmap.
+DENSE_MAX = 1 << 27
+
+
 class _Lattice:
     """Occupied voxels (shifted to >= 1) as sorted int64 codes, with their chunks."""
 
@@ -173,6 +198,12 @@ class _Lattice:
         self.codes = self.codes_unsorted[order]
         self.chunk_sorted = chunk[order]
         self.chunk = chunk
+        # A chunk's voxels as a dense bitmap when it is small enough (a 16 m chunk of 5 cm
+        # voxels: 322^3 bytes, 33 MB), for one chunk only (chunk ids all equal).
+        self.dense: NDArray[np.bool_] | None = None
+        if float(np.prod(dims.astype(np.float64))) <= DENSE_MAX and (chunk == chunk[0]).all():
+            self.dense = np.zeros(int(np.prod(dims)), bool)
+            self.dense[self.codes] = True
 
     def encode(self, p: NDArray[np.int64]) -> NDArray[np.int64]:
         d = self.dims
@@ -182,6 +213,9 @@ class _Lattice:
     def occupied(self, p: NDArray[np.int64], chunk: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Whether voxel ``p`` (shifted coordinates) is occupied and in chunk ``chunk``."""
         code = self.encode(p)
+        if self.dense is not None:  # one chunk: a bitmap lookup, 5-10x a binary search
+            hit: NDArray[np.bool_] = self.dense[code]
+            return hit
         at = np.searchsorted(self.codes, code)
         at = np.minimum(at, len(self.codes) - 1)
         found: NDArray[np.bool_] = (self.codes[at] == code) & (self.chunk_sorted[at] == chunk)
