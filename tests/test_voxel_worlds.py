@@ -175,3 +175,27 @@ def test_voxels_refused_where_there_are_none(
     cloud = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
     _refused(capsys, ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels",
                       "--stream"], out, "streaming keeps no voxels")  # fmt: skip
+
+
+def test_outliers_are_dropped_from_cloud_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--outliers: far scattered points leave no voxel; the same in cloud2world and convert."""
+    rng = np.random.default_rng(4)
+    plane = np.column_stack([rng.uniform(0, 4, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)])
+    far = rng.uniform(-30, 30, (20, 3)) + np.array([0.0, 0.0, 40.0])
+    cloud = tmp_path / "c.xyz"
+    np.savetxt(cloud, np.concatenate([plane, far]), fmt="%.4f")
+    out = tmp_path / "w"
+    args = ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels", "--resolution",
+            "0.1", "--outliers", "2", "--simulator", "gz"]  # fmt: skip
+    assert main(args) == 0
+    assert "20 statistical outliers removed" in capsys.readouterr().out
+    top = max(trimesh.load(s).bounds[1][2] for s in _stls(out))
+    assert top <= 0.1 + 1e-6  # only the plane's voxels are left
+    target = tmp_path / "clean.xyz"
+    assert main(["convert", str(cloud), str(target), "--outliers", "2", "-q"]) == 0
+    assert len(np.loadtxt(target, ndmin=2)) == 20000
+    bag = FIXTURES / "bags/bag1_ccny_hokuyo_scan/demo.bag"
+    _refused(capsys, ["convert", str(bag), str(tmp_path / "b.xyz"), "--outliers", "2"],
+             tmp_path / "b.xyz", "scans.outliers")  # fmt: skip

@@ -209,6 +209,11 @@ class ScansConfig:
     #: Cloud files: subtract a local origin (auto: when the points lie beyond 1 km of the
     #: origin, e.g. UTM, the rounded centre of their bounding box) | none.
     local_origin: LocalOrigin = "auto"
+    #: Cloud files: statistical outlier removal (Open3D's neighbour search): a point whose mean
+    #: distance to its ``outlier_neighbours`` nearest points is above the mean of all such
+    #: distances + this many standard deviations is dropped; None = off.
+    outliers: float | None = None
+    outlier_neighbours: int = 20
 
 
 @dataclass
@@ -398,6 +403,24 @@ class Config:
             v = getattr(sc, name)
             _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
         _check(sc.max_gap > 0, "scans.max_gap", sc.max_gap, "> 0 seconds")
+        _check(
+            sc.outliers is None or 0 < sc.outliers <= 100,
+            "scans.outliers",
+            sc.outliers,
+            "in (0, 100] standard deviations, or null (off)",
+        )
+        _check(
+            1 <= sc.outlier_neighbours <= 1000,
+            "scans.outlier_neighbours",
+            sc.outlier_neighbours,
+            "1..1000",
+        )
+        _check(
+            sc.outliers is None or not (c.stream.enabled or c.stream.workers or c.stream.scheduler),
+            "scans.outliers",
+            sc.outliers,
+            "null with --stream, --workers or --scheduler (a streamed piece sees only its points)",
+        )
         _check(
             sc.las_classes is None or all(0 <= k <= 255 for k in sc.las_classes),
             "scans.las_classes",

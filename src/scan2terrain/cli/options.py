@@ -162,6 +162,25 @@ def geometry_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def cloud_filter_options(p: argparse.ArgumentParser) -> None:
+    """Clean-up of cloud files before they are used (cloud2world, convert)."""
+    g = p.add_argument_group("cloud files")
+    g.add_argument(
+        "--outliers",
+        type=float,
+        metavar="SD",
+        dest="scans.outliers",
+        help="drop statistical outliers: points whose mean distance to their nearest neighbours "
+        "is over the mean + SD standard deviations (e.g. 2; default: off)",
+    )
+    g.add_argument(
+        "--outlier-neighbours",
+        type=int,
+        dest="scans.outlier_neighbours",
+        help="neighbours each point's mean distance is taken over, for --outliers",
+    )
+
+
 def voxel_options(p: argparse.ArgumentParser) -> None:
     """Options of --geometry voxels (the commands that hold voxels)."""
     g = p.add_argument_group("voxels (--geometry voxels)")

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from scan2terrain.cli.options import (
+    cloud_filter_options,
     common,
     geometry_options,
     octree_options,
@@ -193,6 +194,7 @@ def bag_commands(sub: Any) -> None:
     octree_options(c)
     voxel_options(c)
     scan_options(c, bag=False)
+    cloud_filter_options(c)
     stream_options(c)
     progress_option(c)
 
@@ -213,6 +215,7 @@ def bag_commands(sub: Any) -> None:
     v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     v.add_argument("--config", type=Path, help="YAML config file; flags override it")
     scan_options(v, bag=True)
+    cloud_filter_options(v)
     v.add_argument(
         "--las-classes",
         type=int,

@@ -265,15 +265,30 @@ def read_clouds(
     ``scans.local_origin: auto``), and notes."""
     from scan2terrain.readers.cloudfile import read_cloud
 
-    classes = cfg.scans.las_classes
-    clouds = [read_cloud(f, las_classes=classes) for f in files]
+    sc = cfg.scans
+    clouds = [read_cloud(f, las_classes=sc.las_classes) for f in files]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
+    points = [c.points for c in clouds]
+    if sc.outliers is not None:
+        from scan2terrain.filters.outliers import statistical_outliers
+
+        for i, c in enumerate(clouds):
+            keep = statistical_outliers(
+                c.points, neighbours=sc.outlier_neighbours, std_ratio=sc.outliers
+            )
+            points[i] = c.points[keep]
+            notes.append(
+                f"{c.path.name}: {int((~keep).sum()):,} statistical outliers removed (mean"
+                f" distance to {sc.outlier_neighbours} neighbours over mean + {sc.outliers:g} sd)"
+            )
+            if not keep.any():  # pragma: no cover - the filter keeps points at the mean
+                raise InputError(c.path, "every point is a statistical outlier")
     origin = np.zeros(3)
     if local:
-        lo = np.min([c.points.min(axis=0) for c in clouds], axis=0)
-        hi = np.max([c.points.max(axis=0) for c in clouds], axis=0)
-        origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
-    return [c.points - origin for c in clouds], origin, notes
+        lo = np.min([p.min(axis=0) for p in points], axis=0)
+        hi = np.max([p.max(axis=0) for p in points], axis=0)
+        origin = local_origin(lo, hi, sc.local_origin, notes)
+    return [p - origin for p in points], origin, notes
 
 
 def cloud2world(
@@ -381,6 +396,11 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
         clouds, _, notes = read_clouds(source, cfg, local=False)  # coordinates as they were
         points = np.concatenate(clouds)
     else:
+        if cfg.scans.outliers is not None:
+            raise ConfigError(
+                "scans.outliers (--outliers) cleans cloud files; a bag's scans are not filtered:"
+                " convert the bag to a cloud file first, then filter that"
+            )
         with open_bag(list(source)) as bag:
             points, notes = _bag_hits(bag, cfg)
     write_points(target, points)
