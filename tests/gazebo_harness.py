@@ -99,6 +99,19 @@ class HeightmapProbe:
     heights: np.ndarray | None = field(default=None, repr=False)
 
 
+@dataclass(frozen=True)
+class SubMeshProbe:
+    """One submesh of a mesh as gz-common 4's ``MeshManager::Load`` returns it: its triangle
+    count and its material's diffuse and ambient colours (RGBA, 0..1; None when the submesh has
+    no material). gz-common's COLLADA loader makes one submesh per ``<triangles>`` element,
+    with the material that element names."""
+
+    triangles: int
+    material: int | None
+    diffuse: tuple[float, float, float, float] | None
+    ambient: tuple[float, float, float, float] | None
+
+
 @dataclass
 class ShapeProbe:
     """One non-heightmap ``<geometry>`` of a collision or visual, as SDFormat 12 parsed it.
@@ -106,7 +119,9 @@ class ShapeProbe:
     ``pose`` is the collision/visual frame in the WORLD frame ``(x, y, z, roll, pitch, yaw)``.
     ``type`` is ``box`` (``size`` x, y, z), ``plane`` (``size`` x, y; ``normal``), ``mesh``
     (``uri``, resolved ``path``, ``scale``; ``triangles`` (T, 3, 3) float64 in the mesh frame as
-    gz-common 4's ``MeshManager::Load`` returns them, ``mesh_min``/``mesh_max``), ``polyline``
+    gz-common 4's ``MeshManager::Load`` returns them, ``mesh_min``/``mesh_max``, and
+    ``submeshes``, one :class:`SubMeshProbe` per submesh in order, None unless the mesh loaded;
+    ``triangles`` holds the submeshes' triangles in that order), ``polyline``
     (``polylines``: one ``(height, points (N, 2))`` per ``<polyline>`` element of the geometry,
     read from the element tree: SDFormat 12.3 has no Polyline class) or ``other``.
 
@@ -138,6 +153,7 @@ class ShapeProbe:
     triangles: np.ndarray | None = field(default=None, repr=False)
     extrusion: str | None = None
     extrusion_signal: int | None = None
+    submeshes: list[SubMeshProbe] | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------- build
@@ -307,6 +323,7 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
             shape.mesh_max = _tuple(entry["mesh_max"])  # type: ignore[assignment]
             raw = np.fromfile(entry["triangles_file"], dtype="<f8")
             shape.triangles = raw.reshape(-1, 3, 3)
+            shape.submeshes = [_to_submesh(s) for s in entry.get("submeshes", [])]
     for line in entry.get("polylines", []):
         points = np.asarray(line["points"], dtype=np.float64).reshape(-1, 2)
         shape.polylines.append((float(line["height"]), points))
@@ -320,6 +337,20 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
             raw = np.fromfile(entry["triangles_file"], dtype="<f8")
             shape.triangles = raw.reshape(-1, 3, 3)
     return shape
+
+
+def _to_submesh(entry: dict[str, Any]) -> SubMeshProbe:
+    def colour(key: str) -> tuple[float, float, float, float] | None:
+        value = entry.get(key)
+        return None if value is None else _tuple(value)  # type: ignore[return-value]
+
+    material = entry.get("material")
+    return SubMeshProbe(
+        triangles=int(entry["triangles"]),
+        material=None if material is None else int(material),
+        diffuse=colour("diffuse"),
+        ambient=colour("ambient"),
+    )
 
 
 def _run_probe(world: Path, model_dirs: list[Path], tmp: Path) -> dict[str, Any]:

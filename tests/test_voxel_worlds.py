@@ -199,3 +199,60 @@ def test_outliers_are_dropped_from_cloud_files(
     bag = FIXTURES / "bags/bag1_ccny_hokuyo_scan/demo.bag"
     _refused(capsys, ["convert", str(bag), str(tmp_path / "b.xyz"), "--outliers", "2"],
              tmp_path / "b.xyz", "scans.outliers")  # fmt: skip
+
+
+def test_coarser_voxels_are_octomaps_inner_nodes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--voxel-size 0.16 on a 0.08 m tree: a coarse voxel wherever any of its 8 voxels is
+    occupied (OctoMap's max rule), and the meshes hold exactly those."""
+    from scan2terrain.grids.occupied import occupied_voxels
+    from scan2terrain.grids.projection import leaf_columns
+    from scan2terrain.octree.bt import read_bt
+
+    bt = read_bt(GEB079)
+    keys, occ, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
+    fine = occupied_voxels(keys, occ, runs, GEB079, why="test").astype(np.int64)
+    coarse = np.unique(fine >> 1, axis=0)
+    out = tmp_path / "w"
+    args = ["octree2world", str(GEB079), "-o", str(out), "--geometry", "voxels",
+            "--voxel-size", "0.16", "--simulator", "gz"]  # fmt: skip
+    assert main(args) == 0
+    assert f"{len(coarse)} occupied voxels of 0.16 m" in capsys.readouterr().out
+    volume = sum(trimesh.load(s).volume for s in _stls(out))
+    assert volume == pytest.approx(len(coarse) * 0.16**3, rel=1e-3)
+    _refused(capsys, [*args[:2], "-o", str(tmp_path / "x"), "--geometry", "voxels",
+                      "--voxel-size", "0.1"], tmp_path / "x", "times a power of two")  # fmt: skip
+
+
+def test_colours_from_a_coloured_cloud_reach_gazebo(tmp_path: Path) -> None:
+    """A PLY with RGB: each voxel takes the mean colour of its points, and gz-common's loader
+    sees one submesh per colour with that diffuse colour; the collision stays uncoloured."""
+    red = _box((0, 0.3), (0, 0.2), (0, 0.1))  # 6 voxels
+    blue = _box((0.5, 0.7), (0, 0.1), (0, 0.1))  # 2 voxels
+    pts = np.concatenate([(red + 0.5) * R, (blue + 0.5) * R, [[0.95, 0.05, 0.05]] * 2])
+    rgb = np.concatenate(
+        [[[255, 0, 0]] * len(red), [[0, 0, 255]] * len(blue), [[255, 255, 0], [0, 0, 0]]]
+    ).astype(np.uint8)  # the last voxel: yellow and black points, mean (128, 128, 0)
+    cloud = tmp_path / "c.ply"
+    header = (
+        f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\nproperty float x\nproperty float y\n"
+        "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+        "end_header\n"
+    )
+    rows = [
+        f"{x:.3f} {y:.3f} {z:.3f} {r} {g} {b}"
+        for (x, y, z), (r, g, b) in zip(pts, rgb, strict=True)
+    ]
+    cloud.write_text(header + "\n".join(rows) + "\n")
+    out = tmp_path / "w"
+    args = ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels", "--resolution",
+            str(R), "--simulator", "gz", "-q"]  # fmt: skip
+    assert main(args) == 0
+    _, shapes = probe_shapes(out / "world_gz.sdf", [out / "models"], tmp_path / "probe")
+    (visual,) = [s for s in shapes if s.type == "mesh" and s.kind == "visual"]
+    assert visual.submeshes is not None
+    seen = {tuple(round(c * 255) for c in s.diffuse[:3]) for s in visual.submeshes if s.diffuse}
+    assert seen == {(255, 0, 0), (0, 0, 255), (128, 128, 0)}
+    (collision,) = [s for s in shapes if s.type == "mesh" and s.kind == "collision"]
+    assert collision.mesh_loaded

@@ -123,6 +123,10 @@ class WorldConfig:
     #: voxels: occupied voxels in 3D connected components (26-connected) of fewer voxels than
     #: this are left out; 0 or 1 keeps all.
     min_voxels: int = 0
+    #: voxels: mesh coarser voxels than the octree's: its resolution times a power of two (a
+    #: coarse voxel is occupied if any of its voxels is, as OctoMap's inner nodes); None: the
+    #: octree's own.
+    voxel_size: float | None = None
 
 
 @dataclass
@@ -305,6 +309,12 @@ class Config:
         _check(0 < w.chunk <= MAX_METRES, "world.chunk", w.chunk, f"in (0, {MAX_METRES:g}] metres")
         _check(w.max_triangles >= 1, "world.max_triangles", w.max_triangles, ">= 1")
         _check(w.min_voxels >= 0, "world.min_voxels", w.min_voxels, ">= 0")
+        _check(
+            w.voxel_size is None or MIN_VOXEL <= w.voxel_size <= MAX_CELL,
+            "world.voxel_size",
+            w.voxel_size,
+            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (the octree's resolution)",
+        )
         voxels = w.geometry == "voxels"
         _check(
             not voxels or c.octree.grid == "occupancy",

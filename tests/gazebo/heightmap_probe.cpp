@@ -27,7 +27,11 @@
 //   loaded with gz-common's MeshManager (the loader gz-sim and its physics
 //   use: STL, COLLADA, OBJ), and their triangles, in the mesh frame after the
 //   loader's unit/up-axis handling, are written as raw little-endian float64
-//   (triangles x 3 vertices x xyz) to OUT_DIR/mesh<index>.f64.
+//   (triangles x 3 vertices x xyz) to OUT_DIR/mesh<index>.f64. Each submesh
+//   is also reported ("submeshes": its triangle count and its material's
+//   diffuse and ambient RGBA, null without a material): gz-common's COLLADA
+//   loader makes one submesh per <triangles> element, with that element's
+//   material, which is how a mesh's colours reach gz-sim's renderer.
 //
 //   gz-common 4.5.1's Image::MaxColor() fails on 16-bit images (it returns 0,
 //   logging "Coordinates out of range" for each pixel), so MaxElevation() is 0
@@ -80,6 +84,7 @@
 #include <ignition/common/Console.hh>
 #include <ignition/common/Image.hh>
 #include <ignition/common/ImageHeightmap.hh>
+#include <ignition/common/Material.hh>
 #include <ignition/common/Mesh.hh>
 #include <ignition/common/MeshManager.hh>
 #include <ignition/common/SubMesh.hh>
@@ -427,6 +432,45 @@ bool WriteDoubles(const fs::path &_path, const std::vector<double> &_values)
 }
 
 /////////////////////////////////////////////////
+std::string ColorJson(const ignition::math::Color &_c)
+{
+  return "[" + Num(_c.R()) + ", " + Num(_c.G()) + ", " + Num(_c.B()) + ", " +
+      Num(_c.A()) + "]";
+}
+
+/////////////////////////////////////////////////
+/// Each submesh of a mesh, in order: its triangles and its material's colours.
+std::string SubMeshesJson(const ignition::common::Mesh *_mesh)
+{
+  std::ostringstream o;
+  o << "[";
+  for (unsigned int si = 0; si < _mesh->SubMeshCount(); ++si)
+  {
+    auto sub = _mesh->SubMeshByIndex(si).lock();
+    o << (si ? ", " : "") << "{\"triangles\": "
+      << (sub ? sub->IndexCount() / 3 : 0);
+    // gz-common 4: MaterialIndex() is unsigned; a submesh without a material
+    // keeps the largest value, and MaterialByIndex() returns null past the end.
+    ignition::common::MaterialPtr mat;
+    if (sub && sub->MaterialIndex() < _mesh->MaterialCount())
+      mat = _mesh->MaterialByIndex(sub->MaterialIndex());
+    if (mat)
+    {
+      o << ", \"material\": " << sub->MaterialIndex()
+        << ", \"diffuse\": " << ColorJson(mat->Diffuse())
+        << ", \"ambient\": " << ColorJson(mat->Ambient());
+    }
+    else
+    {
+      o << ", \"material\": null, \"diffuse\": null, \"ambient\": null";
+    }
+    o << "}";
+  }
+  o << "]";
+  return o.str();
+}
+
+/////////////////////////////////////////////////
 /// Triangles of a mesh file as gz-common's MeshManager loads it, written to
 /// OUT_DIR/mesh<index>.f64; returns the JSON fields describing the load.
 std::string LoadMesh(const std::string &_path)
@@ -453,6 +497,7 @@ std::string LoadMesh(const std::string &_path)
     << ", \"mesh_triangles\": " << xyz.size() / 9
     << ", \"mesh_min\": " << Vec(mesh->Min())
     << ", \"mesh_max\": " << Vec(mesh->Max())
+    << ", \"submeshes\": " << SubMeshesJson(mesh)
     << ", \"triangles_file\": " << Str(fs::absolute(outPath).string());
   return o.str();
 }

@@ -191,6 +191,13 @@ def voxel_options(p: argparse.ArgumentParser) -> None:
         help="metres: the voxel mesh is cut into cubes this size, one collision and visual each",
     )
     g.add_argument(
+        "--voxel-size",
+        type=float,
+        dest="world.voxel_size",
+        help="metres: mesh coarser voxels, the octree's resolution times a power of two "
+        "(a coarse voxel is occupied if any of its voxels is; default: the octree's)",
+    )
+    g.add_argument(
         "--max-triangles",
         type=int,
         dest="world.max_triangles",

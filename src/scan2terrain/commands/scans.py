@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -258,17 +258,27 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
 # --- cloud files -------------------------------------------------------------------------------
 
 
+class Clouds(NamedTuple):
+    """Cloud files as read for a command."""
+
+    points: list[NDArray[np.float64]]  #: per file, the local origin subtracted
+    origin: NDArray[np.float64]  #: the local origin (zeros when none)
+    notes: list[str]
+    colours: list[NDArray[np.uint8] | None]  #: per file, aligned with ``points`` (if asked)
+
+
 def read_clouds(
-    files: Sequence[Path], cfg: Config, *, local: bool = True
-) -> tuple[list[NDArray[np.float64]], NDArray[np.float64], list[str]]:
+    files: Sequence[Path], cfg: Config, *, local: bool = True, colours: bool = False
+) -> Clouds:
     """Points of every file (float64), the local origin subtracted from them (``local`` and
-    ``scans.local_origin: auto``), and notes."""
+    ``scans.local_origin: auto``), and notes; with ``colours`` their RGB where a file has it."""
     from scan2terrain.readers.cloudfile import read_cloud
 
     sc = cfg.scans
-    clouds = [read_cloud(f, las_classes=sc.las_classes) for f in files]
+    clouds = [read_cloud(f, las_classes=sc.las_classes, colours=colours) for f in files]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
     points = [c.points for c in clouds]
+    rgb = [c.colours for c in clouds]
     if sc.outliers is not None:
         from scan2terrain.filters.outliers import statistical_outliers
 
@@ -277,6 +287,8 @@ def read_clouds(
                 c.points, neighbours=sc.outlier_neighbours, std_ratio=sc.outliers
             )
             points[i] = c.points[keep]
+            colour = rgb[i]
+            rgb[i] = None if colour is None else colour[keep]
             notes.append(
                 f"{c.path.name}: {int((~keep).sum()):,} statistical outliers removed (mean"
                 f" distance to {sc.outlier_neighbours} neighbours over mean + {sc.outliers:g} sd)"
@@ -288,7 +300,7 @@ def read_clouds(
         lo = np.min([p.min(axis=0) for p in points], axis=0)
         hi = np.max([p.max(axis=0) for p in points], axis=0)
         origin = local_origin(lo, hi, sc.local_origin, notes)
-    return [p - origin for p in points], origin, notes
+    return Clouds([p - origin for p in points], origin, notes, rgb)
 
 
 def cloud2world(
@@ -317,18 +329,25 @@ def cloud2world(
     for f in files:
         if is_url(f):
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
-    clouds, _, notes = read_clouds([Path(f) for f in files], cfg)
+    voxels = cfg.world.geometry == "voxels"
+    clouds, _, notes, rgb = read_clouds([Path(f) for f in files], cfg, colours=voxels)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
     outside: dict[Path, int] = {}
-    for path, pts in zip(files, clouds, strict=True):
+    colours = None
+    if any(c is not None for c in rgb):
+        from scan2terrain.octree.colour import VoxelColours
+
+        colours = VoxelColours(tree.resolution)
+    for path, local, pts_rgb in zip(files, clouds, rgb, strict=True):
+        pts = sensor.apply(local) if cfg.scans.insert == "raycast" else local
         try:
             if cfg.scans.insert == "raycast":
-                stats = tree.insert_scan(
-                    sensor.apply(pts), sensor.translation, max_range=cfg.octree.max_range
-                )
+                stats = tree.insert_scan(pts, sensor.translation, max_range=cfg.octree.max_range)
             else:
                 stats = tree.insert_endpoints(pts)
+            if colours is not None and pts_rgb is not None:
+                colours.add(pts, pts_rgb)
         except InputError as exc:
             raise InputError(path, exc.problem) from exc
         if stats.out_of_range:
@@ -360,6 +379,7 @@ def cloud2world(
         cfg=cfg,
         overwrite=overwrite,
         extra=extra,
+        colours=colours,
     )
     result.notes[:0] = notes
     return result
@@ -393,7 +413,7 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
         )
         raise OutputError(f"{target}: {problem} (use one of {', '.join(FORMATS)})")
     if all(Path(s).suffix.lower() in SUFFIXES for s in source):
-        clouds, _, notes = read_clouds(source, cfg, local=False)  # coordinates as they were
+        clouds, _, notes, _ = read_clouds(source, cfg, local=False)  # coordinates as they were
         points = np.concatenate(clouds)
     else:
         if cfg.scans.outliers is not None:

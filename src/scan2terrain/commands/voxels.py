@@ -26,6 +26,7 @@ from scan2terrain.types import (
 from scan2terrain.world.folder import Result
 
 if TYPE_CHECKING:
+    from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
 
 
@@ -93,6 +94,7 @@ def voxels_world(
     extra: dict[str, bytes] | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
+    colours: VoxelColours | None = None,
 ) -> Result:
     """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
     projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
@@ -118,7 +120,7 @@ def voxels_world(
 
         return voxel_mesh_world(
             keys, occupied, resolution, source=source, out=out, cfg=cfg, overwrite=overwrite,
-            extra=extra, start=start, runs=runs,
+            extra=extra, start=start, runs=runs, colours=colours,
         )  # fmt: skip
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max

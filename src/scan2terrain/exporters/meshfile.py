@@ -2,23 +2,45 @@
 
 The writers return deterministic bytes: binary STL (float32, what STL holds), Wavefront OBJ and
 COLLADA 1.4.1 (float64 text, Python's shortest repr, which reads back to the same numbers; Z up,
-metres; with per-face normals, one material), as Gazebo loads for visuals and collisions.
-Vertices are in the map frame, metres, z up (:class:`scan2terrain.geometry.mesh.Mesh`).
+metres; with per-face normals, one material, or one material per colour of coloured faces), as
+Gazebo loads for visuals and collisions. Vertices are in the map frame, metres, z up
+(:class:`scan2terrain.geometry.mesh.Mesh`).
+
+Why face colours are materials, not COLLADA's per-vertex ``COLOR`` input: gz-common 4 (gz-sim
+Fortress) reads only ``VERTEX``, ``NORMAL`` and ``TEXCOORD`` inputs of ``<triangles>`` and warns
+"Triangle input semantic: 'COLOR' is currently not supported" for any other
+(graphics/src/ColladaLoader.cc, ``LoadTriangles``); its ``SubMesh`` has no vertex colours. What
+it does read is one material per ``<triangles>`` element (``LoadMaterial``: the ``<lambert>``,
+``<phong>`` or ``<blinn>`` ``<ambient>``/``<diffuse>`` colours), each element becoming a submesh
+with that material; Gazebo Classic's loader, from which gz-common's was taken, does the same.
 """
 
 from __future__ import annotations
 
 import re
 import struct
+from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from scan2terrain.geometry.mesh import Mesh
 
-__all__ = ["WALL_COLOUR", "dae_bytes", "obj_bytes", "stl_bytes"]
+__all__ = [
+    "MAX_MATERIALS",
+    "WALL_COLOUR",
+    "dae_bytes",
+    "obj_bytes",
+    "quantise_colours",
+    "stl_bytes",
+]
 
 #: Colour of the walls' material in COLLADA (RGBA, linear).
 WALL_COLOUR = (0.7, 0.7, 0.7, 1.0)
+#: Materials (one submesh, one draw call each in Gazebo) a coloured COLLADA mesh may have.
+MAX_MATERIALS = 256
+#: Bits per channel of the palette's second try (:func:`quantise_colours`).
+_PALETTE_BITS = 5
 
 
 def stl_bytes(mesh: Mesh) -> bytes:
@@ -41,16 +63,124 @@ def obj_bytes(mesh: Mesh) -> bytes:
     return ("\n".join(lines) + "\n").encode("ascii")
 
 
-def dae_bytes(mesh: Mesh, name: str) -> bytes:
+def quantise_colours(
+    colours: NDArray[np.uint8], max_colours: int = MAX_MATERIALS
+) -> tuple[NDArray[np.uint8], NDArray[np.intp]]:
+    """At most ``max_colours`` colours standing for ``colours`` (F, 3) uint8 RGB: the palette
+    (K, 3) uint8, sorted by ``(r, g, b)``, and each row's palette index (F,).
+
+    The first that fits: the colours as they are, if at most ``max_colours`` differ; else each
+    channel rounded to 5 bits (32 levels, ``round(c * 31 / 255)`` and back to
+    ``round(level * 255 / 31)``, so 0 and 255 stay), if at most ``max_colours`` of those differ;
+    else the ``max_colours`` 5-bit colours that most rows have (ties: the smaller ``(r, g, b)``),
+    each row taking the one nearest to its 5-bit colour (squared RGB distance; ties: the
+    smaller). Integer arithmetic throughout: the same colours give the same palette.
+    """
+    rgb = np.asarray(colours)
+    if rgb.ndim != 2 or rgb.shape[1] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"colours must be (F, 3) uint8, got {rgb.dtype} {rgb.shape}")
+    if max_colours < 1:
+        raise ValueError(f"max_colours must be at least 1, got {max_colours}")
+    packed = _pack_rgb(rgb)
+    palette, index = np.unique(packed, return_inverse=True)
+    if len(palette) <= max_colours:
+        return _unpack_rgb(palette), index.reshape(-1)
+    levels = (1 << _PALETTE_BITS) - 1
+    level = (rgb.astype(np.int64) * (2 * levels) + 255) // 510  # round(c * 31 / 255), half up
+    coarse = (level * 510 + levels) // (2 * levels)  # round(level * 255 / 31), half up
+    palette, index, counts = np.unique(_pack_rgb(coarse), return_inverse=True, return_counts=True)
+    index = index.reshape(-1)
+    if len(palette) <= max_colours:
+        return _unpack_rgb(palette), index
+    # The most frequent 5-bit colours (np.unique sorted them, so a stable sort by count keeps
+    # the smaller colour first among equals), then each 5-bit colour's nearest of them.
+    kept = np.sort(palette[np.argsort(-counts, kind="stable")[:max_colours]])
+    chosen = _unpack_rgb(kept).astype(np.int64)
+    candidates = _unpack_rgb(palette).astype(np.int64)
+    nearest = np.empty(len(palette), dtype=np.intp)
+    for lo in range(0, len(palette), 4096):  # (4096, K) distances at a time
+        d = candidates[lo : lo + 4096, None, :] - chosen[None, :, :]
+        nearest[lo : lo + 4096] = np.argmin((d * d).sum(axis=2), axis=1)
+    return _unpack_rgb(kept), nearest[index]
+
+
+def _pack_rgb(rgb: NDArray[np.integer]) -> NDArray[np.int64]:
+    r = rgb.astype(np.int64)
+    packed: NDArray[np.int64] = (r[:, 0] << 16) | (r[:, 1] << 8) | r[:, 2]
+    return packed
+
+
+def _unpack_rgb(packed: NDArray[np.int64]) -> NDArray[np.uint8]:
+    return np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1).astype(
+        np.uint8
+    )
+
+
+class _Group(NamedTuple):
+    """One ``<triangles>`` element of a COLLADA mesh and its material."""
+
+    symbol: str  #: the material symbol the element names
+    material: str  #: material id
+    effect: str  #: effect id
+    rgba: tuple[float, ...]
+    ambient: bool  #: the colour is also the material's ambient one
+    faces: NDArray[np.int64]  #: indices of its faces, in mesh order
+
+
+def dae_bytes(
+    mesh: Mesh,
+    name: str,
+    *,
+    face_colours: NDArray[np.uint8] | None = None,
+    max_materials: int = MAX_MATERIALS,
+) -> bytes:
     """COLLADA 1.4.1 with one geometry (positions, per-face normals, triangles) and one
     material, ``<unit meter="1"/>`` and ``<up_axis>Z_UP</up_axis>``. ``name`` (letters,
     digits, ``_ - .``; others become ``_``) names the geometry, material and scene node.
-    Timestamps are fixed (1970-01-01) so the same mesh gives the same bytes."""
+    Timestamps are fixed (1970-01-01) so the same mesh gives the same bytes.
+
+    ``face_colours`` (F, 3) uint8 RGB, one per face: the faces are written as one
+    ``<triangles>`` element per colour of :func:`quantise_colours` (at most ``max_materials``),
+    in the palette's ``(r, g, b)`` order, each face in its element in mesh order; each colour
+    is a material ``<name>-rgb-RRGGBB-material`` (symbol ``rgb-RRGGBB``, hex) whose lambert
+    ``<ambient>`` and ``<diffuse>`` are ``RR/255 GG/255 BB/255 1`` (the 8-bit values as stored,
+    not linearised). gz-common 4 and Gazebo Classic load each element as a submesh with its
+    material (see the module's docstring); they do not read per-vertex colours. Without
+    ``face_colours`` the output is one grey material (:data:`WALL_COLOUR`), as it always was.
+    """
     from lxml import etree
 
     ident = re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "mesh"
     if not re.match(r"[A-Za-z_]", ident):
         ident = "_" + ident
+    if face_colours is None:
+        every = np.arange(len(mesh.faces), dtype=np.int64)
+        groups = [
+            _Group("walls", f"{ident}-material", f"{ident}-effect", WALL_COLOUR, False, every)
+        ]
+    else:
+        fc = np.asarray(face_colours)
+        if fc.shape != (len(mesh.faces), 3) or fc.dtype != np.uint8:
+            raise ValueError(
+                f"face_colours must be ({len(mesh.faces)}, 3) uint8, one per face; "
+                f"got {fc.dtype} {fc.shape}"
+            )
+        palette, index = quantise_colours(fc, max_materials)
+        order = np.argsort(index, kind="stable").astype(np.int64)  # by colour, then face
+        bounds = np.searchsorted(index[order], np.arange(len(palette) + 1))
+        groups = []
+        for k, (r, g, b) in enumerate(palette.tolist()):
+            symbol = f"rgb-{r:02X}{g:02X}{b:02X}"
+            groups.append(
+                _Group(
+                    symbol,
+                    f"{ident}-{symbol}-material",
+                    f"{ident}-{symbol}-effect",
+                    (r / 255, g / 255, b / 255, 1.0),
+                    True,
+                    order[bounds[k] : bounds[k + 1]],
+                )
+            )
     ns = "http://www.collada.org/2005/11/COLLADASchema"
     # lxml-stubs type nsmap keys as str; None is lxml's key for the default namespace.
     root = etree.Element(f"{{{ns}}}COLLADA", nsmap={None: ns}, version="1.4.1")  # type: ignore[dict-item]
@@ -72,13 +202,18 @@ def dae_bytes(mesh: Mesh, name: str) -> bytes:
     sub(asset, "up_axis", "Z_UP")
 
     effects = sub(root, "library_effects")
-    effect = sub(effects, "effect", id=f"{ident}-effect")
-    technique = sub(sub(effect, "profile_COMMON"), "technique", sid="common")
-    lambert = sub(technique, "lambert")
-    sub(sub(lambert, "diffuse"), "color", " ".join(map(repr, WALL_COLOUR)), sid="diffuse")
+    for group in groups:
+        effect = sub(effects, "effect", id=group.effect)
+        technique = sub(sub(effect, "profile_COMMON"), "technique", sid="common")
+        lambert = sub(technique, "lambert")
+        colour = " ".join(map(repr, group.rgba))
+        if group.ambient:  # gz-common's default ambient is grey: lit by ambient light, keep hue
+            sub(sub(lambert, "ambient"), "color", colour, sid="ambient")
+        sub(sub(lambert, "diffuse"), "color", colour, sid="diffuse")
     materials = sub(root, "library_materials")
-    material = sub(materials, "material", id=f"{ident}-material", name=f"{ident}-material")
-    sub(material, "instance_effect", url=f"#{ident}-effect")
+    for group in groups:
+        material = sub(materials, "material", id=group.material, name=group.material)
+        sub(material, "instance_effect", url=f"#{group.effect}")
 
     geometries = sub(root, "library_geometries")
     geometry = sub(geometries, "geometry", id=f"{ident}-mesh", name=ident)
@@ -105,19 +240,21 @@ def dae_bytes(mesh: Mesh, name: str) -> bytes:
             sub(accessor, "param", name=axis, type="float")
     vertices = sub(m, "vertices", id=f"{ident}-vertices")
     sub(vertices, "input", semantic="POSITION", source=f"#{ident}-positions")
-    triangles = sub(m, "triangles", material="walls", count=str(len(mesh.faces)))
-    sub(triangles, "input", semantic="VERTEX", source=f"#{ident}-vertices", offset="0")
-    sub(triangles, "input", semantic="NORMAL", source=f"#{ident}-normals", offset="1")
-    face_index = np.repeat(np.arange(len(mesh.faces), dtype=np.int64), 3)
-    p = np.stack([mesh.faces.reshape(-1), face_index], axis=1).reshape(-1)
-    sub(triangles, "p", " ".join(map(str, p.tolist())))
+    for group in groups:
+        triangles = sub(m, "triangles", material=group.symbol, count=str(len(group.faces)))
+        sub(triangles, "input", semantic="VERTEX", source=f"#{ident}-vertices", offset="0")
+        sub(triangles, "input", semantic="NORMAL", source=f"#{ident}-normals", offset="1")
+        face_index = np.repeat(group.faces, 3)  # the normal of each corner is its face's
+        p = np.stack([mesh.faces[group.faces].reshape(-1), face_index], axis=1).reshape(-1)
+        sub(triangles, "p", " ".join(map(str, p.tolist())))
 
     scenes = sub(root, "library_visual_scenes")
     scene = sub(scenes, "visual_scene", id="Scene", name="Scene")
     node = sub(scene, "node", id=ident, name=ident, type="NODE")
     instance = sub(node, "instance_geometry", url=f"#{ident}-mesh", name=ident)
     bind = sub(sub(instance, "bind_material"), "technique_common")
-    sub(bind, "instance_material", symbol="walls", target=f"#{ident}-material")
+    for group in groups:
+        sub(bind, "instance_material", symbol=group.symbol, target=f"#{group.material}")
     sub(sub(root, "scene"), "instance_visual_scene", url="#Scene")
     out: bytes = etree.tostring(root, xml_declaration=True, encoding="utf-8", pretty_print=True)
     return out

@@ -1,5 +1,6 @@
-"""What the PCD, PLY and XYZ-style readers share: numpy's text parser, byte-size checks, and
-Open3D for the data numpy cannot decode without a loop.
+"""What the PCD, PLY and XYZ-style readers share: numpy's text parser, byte-size checks, the rule
+that turns a file's colour values into 8-bit RGB (:func:`rgb8`), and Open3D for the data numpy
+cannot decode without a loop.
 
 Open3D is not used for everything because on bad input it prints to the console and returns no
 points, or (short ASCII PCD/PLY data, truncated binary PLY; Open3D 0.20) returns uninitialised
@@ -28,8 +29,15 @@ XYZ = ("x", "y", "z")
 _FD2_LOCK = threading.Lock()
 
 
-def open3d_points(path: Path, expected: int) -> NDArray[np.float64]:
-    """Open3D's points for ``path``, which must hold ``expected`` of them.
+def open3d_points(
+    path: Path, expected: int, *, colours: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """Open3D's points for ``path``, which must hold ``expected`` of them, and (``colours``)
+    Open3D's colours times 255, float64 (N, 3), or None where it read none.
+
+    Times 255 gives back what the file stores: Open3D divides PLY ``red/green/blue`` of any type
+    by 255 and unpacks a PCD ``rgb``/``rgba`` into bytes / 255; the caller turns the values into
+    8-bit RGB (:func:`rgb8`).
 
     A PLY that RPly (Open3D's PLY parser) fails to read still comes back with the header's
     number of points, the unread ones uninitialised: RPly's complaint, which it prints to file
@@ -53,7 +61,14 @@ def open3d_points(path: Path, expected: int) -> NDArray[np.float64]:
         raise InputError(
             path, f"corrupt data: the header says {expected} points, Open3D decoded {len(points)}"
         )
-    return points
+    rgb = None
+    if colours and cloud.has_colors():
+        rgb = np.asarray(cloud.colors, dtype=np.float64).reshape(-1, 3) * 255.0
+        if len(rgb) != expected:
+            raise InputError(
+                path, f"corrupt data: {expected} points, Open3D decoded {len(rgb)} colours"
+            )
+    return points, rgb
 
 
 @contextlib.contextmanager
@@ -118,7 +133,8 @@ def loadtxt(
     max_rows: int | None = None,
     comments: str | None = "#",
 ) -> NDArray[np.float64]:
-    """x, y, z columns of a text table as float64 (N, 3), through numpy's C parser."""
+    """Columns ``cols`` of a text table as float64 (N, len(cols)), through numpy's C parser:
+    x, y, z first, then any colour columns."""
     try:
         with warnings.catch_warnings():
             # An empty table is reported below as "no points", not as a warning.
@@ -139,4 +155,35 @@ def loadtxt(
         raise InputError(path, "not a text file (not UTF-8)") from None
     except ValueError as exc:
         raise InputError(path, f"not a table of numbers: {exc} (data rows counted from 0)") from exc
-    return np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+    return np.asarray(pts, dtype=np.float64).reshape(-1, len(cols))
+
+
+def rgb8(values: NDArray[np.number], *, fractions: bool = False) -> NDArray[np.uint8]:
+    """A file's colour values, (N, 3) of any numeric dtype, as 8-bit RGB (N, 3) uint8.
+
+    One rule for the whole array (a file's colours, never a row at a time), so that one file's
+    colours are scaled alike:
+
+    * floats all within 0..1 (``fractions``: the format says floats are 0..1, as PLY ``float``
+      properties and Open3D's ``.xyzrgb`` do; otherwise only where some value is not a whole
+      number) are fractions of full scale: ``round(v * 255)``;
+    * otherwise the values are rounded and clipped to 0..65535: if every one is <= 255 they are
+      8-bit values, used as they are; else 16-bit ones, of which the high byte is kept
+      (``v >> 8``), as LAS defines its colours.
+
+    NaN counts as 0. Vectorised; no copy beyond the result's.
+    """
+    arr = np.asarray(values)
+    if arr.dtype.kind == "f":
+        arr = np.nan_to_num(arr, nan=0.0, posinf=65535.0, neginf=0.0)
+        unit = arr.size > 0 and arr.min() >= 0.0 and arr.max() <= 1.0
+        if unit and (fractions or not np.array_equal(arr, np.round(arr))):
+            return np.round(arr * 255.0).astype(np.uint8)
+        arr = np.clip(np.round(arr), 0, 65535).astype(np.uint16)
+    elif arr.dtype.kind in "iu" and arr.size:
+        arr = np.clip(arr, 0, 65535).astype(np.uint16)
+    elif arr.dtype.kind not in "iu":
+        raise ValueError(f"values must be numbers, got dtype {arr.dtype}")
+    if arr.size and int(arr.max()) > 255:
+        return (arr >> 8).astype(np.uint8)
+    return arr.astype(np.uint8)

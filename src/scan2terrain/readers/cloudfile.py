@@ -14,6 +14,11 @@ otherwise (``_cloud_common.py``: what the numpy-based readers share).
 
 Points are returned as the file stores them (no ``VIEWPOINT`` or CRS applied, as PCL and Open3D
 do); every problem is an :class:`InputError` naming the file.
+
+Colours are read only when asked for (``read_cloud(..., colours=True)``: they cost memory and
+time), as 8-bit RGB aligned with the points, from LAS point formats with colour (2, 3, 5, 7, 8,
+10), PLY ``red/green/blue``, PCD ``rgb``/``rgba`` (PCL's packing) and text files whose colour
+columns are known; how each format's values become 8 bits is told in its reader.
 """
 
 from __future__ import annotations
@@ -51,15 +56,21 @@ class Cloud:
         ``"laz 1.2 point format 3"``, ``"csv"``.
     records : int
         Points in the file (of the requested LAS classes) before non-finite ones were dropped.
+    colours : uint8 array, shape (N, 3), or None
+        Red, green, blue (0..255) of each point, row for row with ``points``; None unless
+        colours were asked for and the file has them.
     """
 
     points: NDArray[np.float64]
     path: Path
     format: str
     records: int
+    colours: NDArray[np.uint8] | None = None
 
 
-def read_cloud(path: Path | str, *, las_classes: Collection[int] | None = None) -> Cloud:
+def read_cloud(
+    path: Path | str, *, las_classes: Collection[int] | None = None, colours: bool = False
+) -> Cloud:
     """Read the points of a point-cloud file, chosen by its extension (case-insensitive).
 
     Parameters
@@ -70,11 +81,19 @@ def read_cloud(path: Path | str, *, las_classes: Collection[int] | None = None) 
     las_classes : collection of int, optional
         Keep only LAS points of these classification codes (e.g. ``(2,)``, ground). LAS/LAZ
         only.
+    colours : bool, default False
+        Also read the points' colours, where the file has them (:attr:`Cloud.colours`; None
+        where it has none). LAS/LAZ: 16-bit values, used as they are if every one in the file
+        is <= 255 (many writers store 8-bit colour unscaled), else their high byte. PLY:
+        ``uchar`` as stored, ``ushort`` by the LAS rule, ``float``/``double`` 0..1 times 255.
+        PCD: ``rgb``/``rgba`` unpacked as PCL packs them. Text: only known colour columns (a
+        header naming red/green/blue or r/g/b; ``.xyzrgb`` columns 4-6, 0..1; a 7-column
+        ``.pts``, columns 5-7).
 
     Returns
     -------
     Cloud
-        The finite points, float64 (N, 3), N >= 1.
+        The finite points, float64 (N, 3), N >= 1, and their colours if asked for.
 
     Raises
     ------
@@ -95,18 +114,21 @@ def read_cloud(path: Path | str, *, las_classes: Collection[int] | None = None) 
         if size == 0:
             raise InputError(path, "empty file")
         if suffix == ".pcd":
-            raw, fmt = read_pcd(path)
+            raw, rgb, fmt = read_pcd(path, colours=colours)
         elif suffix == ".ply":
-            raw, fmt = read_ply(path)
+            raw, rgb, fmt = read_ply(path, colours=colours)
         elif suffix in LAS_SUFFIXES:
-            raw, fmt = read_las(path, classes)
+            raw, rgb, fmt = read_las(path, classes, colours=colours)
         else:
-            raw, fmt = read_text(path, suffix)
+            raw, rgb, fmt = read_text(path, suffix, colours=colours)
     except OSError as exc:
         raise InputError(path, f"cannot read the file ({exc.strerror or exc})") from exc
     finite = np.isfinite(raw).all(axis=1)
-    points = raw if finite.all() else raw[finite]
+    everywhere = bool(finite.all())
+    points = raw if everywhere else raw[finite]
     if len(points) == 0:
         detail = "no points" if len(raw) == 0 else f"all {len(raw)} points are NaN or infinite"
         raise InputError(path, f"no finite point in the cloud ({detail})")
-    return Cloud(np.ascontiguousarray(points, dtype=np.float64), path, fmt, len(raw))
+    if rgb is not None:
+        rgb = np.ascontiguousarray(rgb if everywhere else rgb[finite], dtype=np.uint8)
+    return Cloud(np.ascontiguousarray(points, dtype=np.float64), path, fmt, len(raw), rgb)

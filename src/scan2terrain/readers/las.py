@@ -1,5 +1,6 @@
-"""LAS and LAZ files -> float64 points, whole (:func:`read_las`) or streamed by point range
-(:func:`iter_las`), and their headers alone (:func:`las_info`); a path or a URL.
+"""LAS and LAZ files -> float64 points, whole (:func:`read_las`, with the points' colours on
+request) or streamed by point range (:func:`iter_las`), and their headers alone
+(:func:`las_info`); a path or a URL.
 
 laspy (LAZ through its lazrs backend), read chunk by chunk; coordinates are the scaled float64
 ``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32), computed by
@@ -44,12 +45,24 @@ def class_codes(path: Path | str, suffix: str, las_classes: Collection[int]) -> 
     return classes
 
 
-def read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np.float64], str]:
-    """All points of a local LAS/LAZ file (of ``classes`` only, when given) and what was read
-    (``"laz 1.2 point format 3"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+def read_las(
+    path: Path, classes: NDArray[np.int64] | None, *, colours: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+    """All points of a local LAS/LAZ file (of ``classes`` only, when given), their colours and
+    what was read (``"laz 1.2 point format 3"``); for
+    :func:`~scan2terrain.readers.cloudfile.read_cloud`.
+
+    Colours (uint8 (N, 3) RGB) only when ``colours`` is asked for and the point format has them
+    (formats 2, 3, 5, 7, 8 and 10); None otherwise. LAS stores 16-bit colour, but many writers
+    store 8-bit values unscaled: if every colour value of the file (all its points, whichever
+    classes are kept) is <= 255 the values are used as they are, else their high byte is kept.
+    """
     import laspy  # type: ignore[import-untyped]
 
     parts: list[NDArray[np.float64]] = []
+    rgb_parts: list[NDArray[np.uint16]] = []
+    peak = 0  # the largest colour value of any point read
+    coloured = False
     present: set[int] = set()
     seen = 0
     with path.open("rb") as raw:
@@ -60,14 +73,22 @@ def read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np.
             n = int(header.point_count)
             version = f"{header.version.major}.{header.version.minor}"
             fmt = f"{path.suffix.lower()[1:]} {version} point format {header.point_format.id}"
+            coloured = colours and "red" in header.point_format.dimension_names
             for chunk in reader.chunk_iterator(LAS_CHUNK):
                 seen += len(chunk)
                 xyz = _xyz(chunk)
+                rgb = _rgb(chunk) if coloured else None
+                if rgb is not None and len(rgb):
+                    peak = max(peak, int(rgb.max()))
                 if classes is not None:
                     codes = np.asarray(chunk.classification)
                     present.update(np.unique(codes).tolist())
-                    xyz = xyz[np.isin(codes, classes)]
+                    keep = np.isin(codes, classes)
+                    xyz = xyz[keep]
+                    rgb = None if rgb is None else rgb[keep]
                 parts.append(xyz)
+                if rgb is not None:
+                    rgb_parts.append(rgb)
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError) as exc:
         # lazrs raises LazrsError (a RuntimeError) for corrupt or truncated LAZ data.
         raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from exc
@@ -84,7 +105,20 @@ def read_las(path: Path, classes: NDArray[np.int64] | None) -> tuple[NDArray[np.
             f"no point of class {', '.join(map(str, classes.tolist()))} "
             f"(classes present: {', '.join(map(str, sorted(present)))})",
         )
-    return points, fmt
+    colour = None
+    if coloured:
+        rgb16 = np.concatenate(rgb_parts) if rgb_parts else np.zeros((0, 3), dtype=np.uint16)
+        colour = (rgb16 if peak <= 255 else rgb16 >> 8).astype(np.uint8)
+    return points, colour, fmt
+
+
+def _rgb(points: Any) -> NDArray[np.uint16]:
+    """(n, 3) uint16 red, green, blue of a laspy point record with colour."""
+    arr = points.array
+    out = np.empty((len(arr), 3), dtype=np.uint16)
+    for channel, name in enumerate(("red", "green", "blue")):  # three column copies
+        out[:, channel] = arr[name]
+    return out
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,17 @@
-"""PCD files (``DATA ascii``, ``binary``, ``binary_compressed``) -> float64 points.
+"""PCD files (``DATA ascii``, ``binary``, ``binary_compressed``) -> float64 points, and on request
+the colours of an ``rgb`` or ``rgba`` field.
 
 The header is parsed and checked here and the data decoded with numpy (a structured dtype over
 the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double fields; Open3D decodes
 ``binary_compressed`` (LZF), once the header's sizes have been checked against the file.
+
+Colour is PCL's packed convention: a 4-byte field ``rgb`` (``TYPE F``, a float32 whose bits are
+the integer, or ``U``/``I``) or ``rgba`` holding ``0xAARRGGBB`` (little endian: bytes b, g, r,
+a). In ``DATA ascii`` PCL writes an ``rgb`` float field as that integer (pcl/io/src/pcd_io.cpp,
+``PCDWriter::writeASCII``: "Despite the float type, store the rgb field as uint32 because
+several fully opaque color values are mapped to nan"), older writers as the float: a file
+whose ``rgb`` values are all whole numbers 0..2^32-1 is read as integers, any other as float32
+bits.
 """
 
 from __future__ import annotations
@@ -36,11 +45,20 @@ _PCD_TYPES = {
     ("U", 8): "u8",
 }
 _PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT")
+#: Fields holding PCL's packed colour, the first present is read.
+RGB_FIELDS = ("rgb", "rgba")
 
 
-def read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
-    """x, y, z of every point of a PCD file (non-finite ones kept) and what was read
-    (``"pcd binary"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+def read_pcd(
+    path: Path, *, colours: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+    """x, y, z of every point of a PCD file (non-finite ones kept), their colours and what was
+    read (``"pcd binary"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`.
+
+    Colours (uint8 (N, 3) RGB) only when ``colours`` is asked for and the file has an ``rgb`` or
+    ``rgba`` field (see the module's docstring); None otherwise. An ``rgb`` field that is not
+    one 4-byte value per point is refused (InputError) when colours are asked for.
+    """
     raw = path.read_bytes()
     head, start = _pcd_header(path, raw)
     names = head["FIELDS"]
@@ -81,19 +99,35 @@ def read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
         formats.append("<" + code)
         at.append(int(offsets[i]))
         cols.append(int(columns[i]))
+    rgb = next((f for f in RGB_FIELDS if f in names), None) if colours else None
+    if rgb is not None:
+        i = names.index(rgb)
+        if size_l[i] != 4 or count_l[i] != 1 or types[i].upper() not in ("F", "U", "I"):
+            raise InputError(
+                path,
+                f"PCD field {rgb}: TYPE {types[i]} SIZE {sizes[i]} COUNT {counts[i]} is not "
+                "PCL's packed colour (one 4-byte value)",
+            )
+        at.append(int(offsets[i]))
+        cols.append(int(columns[i]))
+        formats.append("<u4")  # the float's bits, for TYPE F
+    fields = [*XYZ, rgb] if rgb is not None else list(XYZ)
     kind = head["DATA"][0].lower() if head["DATA"] else ""
     if kind == "ascii":
         text = decode_text(path, raw[start:])
-        pts = loadtxt(path, io.StringIO(text), cols, delimiter=None, skiprows=0)
-        if len(pts) != n:
-            cut = "truncated: " if len(pts) < n else ""
-            raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(pts)}")
-        return pts, "pcd ascii"
+        table = loadtxt(path, io.StringIO(text), cols, delimiter=None, skiprows=0)
+        if len(table) != n:
+            cut = "truncated: " if len(table) < n else ""
+            raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(table)}")
+        if rgb is None:
+            return table, None, "pcd ascii"
+        return np.ascontiguousarray(table[:, :3]), _ascii_rgb(table[:, 3]), "pcd ascii"
     if kind == "binary":
         need_bytes(path, len(raw), start + n * step, f"{n} points of {step} bytes")
-        dtype = np.dtype({"names": list(XYZ), "formats": formats, "offsets": at, "itemsize": step})
+        dtype = np.dtype({"names": fields, "formats": formats, "offsets": at, "itemsize": step})
         rec = np.frombuffer(raw, dtype=dtype, count=n, offset=start)
-        return stack(rec), "pcd binary"
+        colour = None if rgb is None else unpack_rgb(rec[rgb])
+        return stack(rec), colour, "pcd binary"
     if kind == "binary_compressed":
         need_bytes(path, len(raw), start + 8, "the compressed block's sizes")
         packed, unpacked = (int(v) for v in np.frombuffer(raw, dtype="<u4", count=2, offset=start))
@@ -103,8 +137,32 @@ def read_pcd(path: Path) -> tuple[NDArray[np.float64], str]:
                 f"PCD compressed block unpacks to {unpacked} bytes, {n} points need {n * step}",
             )
         need_bytes(path, len(raw), start + 8 + packed, f"a compressed block of {packed} bytes")
-        return open3d_points(path, n), "pcd binary_compressed"
+        pts, values = open3d_points(path, n, colours=rgb is not None)
+        colour = None  # Open3D unpacks the field into bytes / 255
+        if values is not None:
+            colour = np.clip(np.rint(values), 0, 255).astype(np.uint8)
+        return pts, colour, "pcd binary_compressed"
     raise InputError(path, f"PCD header: unknown DATA {' '.join(head['DATA'])!r}")
+
+
+def unpack_rgb(packed: NDArray[np.uint32]) -> NDArray[np.uint8]:
+    """PCL's packed colours ``0x(AA)RRGGBB`` (N,) -> RGB uint8 (N, 3)."""
+    packed = np.asarray(packed, dtype=np.uint32)
+    out = np.empty((len(packed), 3), dtype=np.uint8)
+    for channel, shift in enumerate((16, 8, 0)):  # three column copies
+        out[:, channel] = (packed >> shift) & 0xFF
+    return out
+
+
+def _ascii_rgb(values: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """Packed colours written as text: integers (PCL) or floats whose bits they are (older
+    writers); see the module's docstring."""
+    whole = np.isfinite(values) & (values == np.floor(values))
+    if whole.all() and (values >= 0).all() and (values < 2.0**32).all():
+        return unpack_rgb(values.astype(np.uint32))
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf/huge: their float32 bits
+        bits = values.astype(np.float32).view(np.uint32)
+    return unpack_rgb(bits)
 
 
 def _pcd_header(path: Path, raw: bytes) -> tuple[dict[str, list[str]], int]:

@@ -1,4 +1,5 @@
-"""PLY files (ascii, binary of either byte order) -> float64 points.
+"""PLY files (ascii, binary of either byte order) -> float64 points, and on request the vertex
+colours (``red``, ``green``, ``blue`` properties).
 
 The header is parsed and checked here and the vertex data decoded with numpy (a structured
 dtype over the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double properties.
@@ -22,6 +23,7 @@ from scan2terrain.readers._cloud_common import (
     loadtxt,
     need_bytes,
     open3d_points,
+    rgb8,
     stack,
 )
 
@@ -43,6 +45,9 @@ _PLY_TYPES = {
     "double": "f8",
     "float64": "f8",
 }
+#: The vertex properties that hold a colour (the names Open3D, CloudCompare, PCL and MeshLab
+#: write).
+RGB = ("red", "green", "blue")
 
 
 @dataclass(frozen=True)
@@ -62,20 +67,35 @@ class _Element:
         return _row_size(self) + sum(np.dtype(code).itemsize for code in self.lists)
 
 
-def read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
-    """x, y, z of every vertex of a PLY file (non-finite ones kept) and what was read
-    (``"ply ascii"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`."""
+def read_ply(
+    path: Path, *, colours: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+    """x, y, z of every vertex of a PLY file (non-finite ones kept), their colours and what was
+    read (``"ply ascii"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`.
+
+    Colours (uint8 (N, 3), only when ``colours`` is asked for and the vertices have numeric
+    ``red``, ``green`` and ``blue`` properties; None otherwise) are scaled by
+    :func:`~scan2terrain.readers._cloud_common.rgb8`: ``uchar`` as stored, ``ushort`` too if
+    every value is <= 255 and else their high byte, ``float``/``double`` 0..1 times 255.
+    """
     raw = path.read_bytes()
     fmt, elements, start = _ply_header(path, raw)
     index = [e.name for e in elements].index("vertex")
     vertex, before = elements[index], elements[:index]
     names = [p for p, _ in vertex.props]
+    codes = dict(vertex.props)
+    rgb = RGB if colours and all(codes.get(c) is not None for c in RGB) else ()
+    floats = any(np.dtype(str(codes[c])).kind == "f" for c in rgb)
     if not vertex.fixed or not all(e.fixed for e in before):
         # Rows of varying length: Open3D (RPly) walks them.
         _check_ply_rows(path, fmt, raw, start, [*before, vertex])
-        return open3d_points(path, vertex.count), f"ply {fmt}"
+        pts, values = open3d_points(path, vertex.count, colours=bool(rgb))
+        colour = None
+        if values is not None:  # Open3D's value / 255 * 255: integers only to a rounding
+            colour = rgb8(values if floats else np.rint(values), fractions=floats)
+        return pts, colour, f"ply {fmt}"
     if fmt == "ascii":
-        cols = [names.index(a) for a in XYZ]
+        cols = [names.index(a) for a in (*XYZ, *rgb)]
         skip = sum(e.count for e in before)  # one line per item of each earlier element
         lines = raw.count(b"\n", start) + (not raw.endswith(b"\n"))
         if lines < skip + vertex.count:  # before numpy sizes its table by the header's count
@@ -86,7 +106,7 @@ def read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
                 f"{max(lines - skip, 0)} lines{after}",
             )
         text = decode_text(path, raw[start:])
-        pts = loadtxt(
+        table = loadtxt(
             path,
             io.StringIO(text),
             cols,
@@ -95,27 +115,35 @@ def read_ply(path: Path) -> tuple[NDArray[np.float64], str]:
             max_rows=vertex.count,
             comments=None,
         )
-        if len(pts) != vertex.count:
+        if len(table) != vertex.count:
             raise InputError(
-                path, f"truncated: PLY header says {vertex.count} vertices, the data has {len(pts)}"
+                path,
+                f"truncated: PLY header says {vertex.count} vertices, the data has {len(table)}",
             )
-        return pts, "ply ascii"
+        if not rgb:
+            return table, None, "ply ascii"
+        return np.ascontiguousarray(table[:, :3]), rgb8(table[:, 3:], fractions=floats), "ply ascii"
     order = "<" if fmt == "binary_little_endian" else ">"
     offset = start + sum(e.count * _row_size(e) for e in before)
     step = _row_size(vertex)
     sizes = np.cumsum([0] + [np.dtype(code).itemsize for _, code in vertex.props]).tolist()
+    fields = [*XYZ, *rgb]
     dtype = np.dtype(
         {
-            "names": list(XYZ),
-            "formats": [order + str(vertex.props[names.index(a)][1]) for a in XYZ],
-            "offsets": [int(sizes[names.index(a)]) for a in XYZ],
+            "names": fields,
+            "formats": [order + str(vertex.props[names.index(a)][1]) for a in fields],
+            "offsets": [int(sizes[names.index(a)]) for a in fields],
             "itemsize": step,
         }
     )
     need_bytes(
         path, len(raw), offset + vertex.count * step, f"{vertex.count} vertices of {step} bytes"
     )
-    return stack(np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)), f"ply {fmt}"
+    records = np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)
+    colour = None
+    if rgb:
+        colour = rgb8(np.stack([records[c] for c in rgb], axis=1), fractions=floats)
+    return stack(records), colour, f"ply {fmt}"
 
 
 def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,12 +43,17 @@ from scan2terrain.world.folder import (
 )
 from scan2terrain.world.names import unique_name
 
+if TYPE_CHECKING:
+    from scan2terrain.octree.colour import VoxelColours
+
 #: The floor a spawn stands on and the obstacles map/ shows, above the ground (metres).
 FLOOR_BAND = 0.3
 OBSTACLE_TOP = 2.0
 #: The ground is the bottom of the voxel layer below which lie fewer than this share of the
 #: voxels: a few stray voxels under the floor (geb079.bt has one, 16 cm below) do not lower it.
 GROUND_QUANTILE = 0.001
+#: Most colours in the visual meshes (a submesh and a material each: draw calls).
+MAX_COLOURS = 64
 #: Most occupied voxels meshed: meshing holds about 2 KB a voxel at its peak today (10 M voxels
 #: took 20 GB), so larger sets are refused before any work instead of exhausting memory.
 MAX_MESH_VOXELS = 4_000_000
@@ -65,9 +71,11 @@ def voxel_mesh_world(
     extra: dict[str, bytes] | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
+    colours: VoxelColours | None = None,
 ) -> Result:
     """Known voxels (OctoMap keys, occupied or free; ``runs`` as in grids.projection) to a world
-    whose geometry is the occupied voxels in the z band (see the module docstring)."""
+    whose geometry is the occupied voxels in the z band (see the module docstring); with
+    ``colours`` (the points' mean colour per voxel) the visuals carry them."""
     from scan2terrain.exporters import meshfile
     from scan2terrain.exporters.preview import preview_png
     from scan2terrain.geometry.voxel_mesh import TooManyTriangles, mesh_voxels
@@ -89,20 +97,30 @@ def voxel_mesh_world(
             " --geometry voxels meshes: choose a coarser --resolution or a narrower"
             " --z-min/--z-max band",
         )
+    rgb = None if colours is None else colours.mean(solid)
     lattice = solid.astype(np.int64) - KEY_OFFSET
+    if w.voxel_size is not None:
+        lattice, resolution, rgb = _coarser(lattice, resolution, w.voxel_size, source, rgb)
     kept = len(lattice)
     if w.min_voxels > 1:
         from scan2terrain.filters.voxels3d import remove_small_components
 
-        lattice = lattice[remove_small_components(lattice, w.min_voxels)]
+        keep = remove_small_components(lattice, w.min_voxels)
+        lattice = lattice[keep]
+        rgb = None if rgb is None else rgb[keep]
         if len(lattice) == 0:
             raise InputError(
                 source, f"every occupied voxel is in a component under world.min_voxels"
                 f" {w.min_voxels}: nothing is left"
             )  # fmt: skip
     cells = max(1, round(w.chunk / resolution))
+    palette = labels = None
+    if rgb is not None:
+        palette, labels = meshfile.quantise_colours(rgb, MAX_COLOURS)
     try:
-        chunks = mesh_voxels(lattice, resolution, chunk_cells=cells, max_triangles=w.max_triangles)
+        chunks = mesh_voxels(
+            lattice, resolution, chunk_cells=cells, labels=labels, max_triangles=w.max_triangles
+        )
     except TooManyTriangles as exc:
         raise InputError(
             source,
@@ -155,7 +173,8 @@ def voxel_mesh_world(
         stems.append(stem)
         base = f"{sdf.MESH_DIR}/{stem}"
         files[f"{base}.stl"] = meshfile.stl_bytes(c.mesh)
-        files[f"{base}.dae"] = meshfile.dae_bytes(c.mesh, stem)
+        face_colours = None if palette is None else palette[c.face_labels]
+        files[f"{base}.dae"] = meshfile.dae_bytes(c.mesh, stem, face_colours=face_colours)
         files[f"{base}.obj"] = meshfile.obj_bytes(c.mesh)
     payload = repr(("voxels", resolution, w.chunk, w.min_voxels, band)).encode()
     base_name = unique_name(source, lattice.tobytes() + payload, cfg)
@@ -164,6 +183,11 @@ def voxel_mesh_world(
         out=out, resolution=resolution, size_z=size_z, geometry="voxels", walls=summary,
         spawn=spawn, preview_label="the 2D projection (map/)",
     )  # fmt: skip
+    if palette is not None:
+        result.notes.append(
+            f"colour: each voxel the mean of its points' RGB (grey without), {len(palette)}"
+            " colours in the visual meshes"
+        )
     if kept != len(lattice):
         result.notes.append(
             f"{kept - len(lattice)} voxels in components under {w.min_voxels} voxels left out"
@@ -181,7 +205,7 @@ def voxel_mesh_world(
         p = sdf.walls_placement(sim, name, "voxels", ground, size_z)
         model = {f"models/{name}/{rel}": data for rel, data in files.items()}
         model[f"models/{name}/model.sdf"] = sdf.voxels_model_sdf(
-            p, ground, stems, comment=described
+            p, ground, stems, comment=described, coloured=palette is not None
         )
         model[f"models/{name}/model.config"] = sdf.model_config(p, f"Voxels from {source.name}")
         pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
@@ -193,3 +217,35 @@ def voxel_mesh_world(
     # The projection is in world axes already (yaw 0, on voxel boundaries).
     folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
+
+
+def _coarser(
+    lattice: NDArray[np.int64],
+    resolution: float,
+    size: float,
+    source: Path,
+    rgb: NDArray[np.uint8] | None,
+) -> tuple[NDArray[np.int64], float, NDArray[np.uint8] | None]:
+    """Voxels ``size`` metres a side (``resolution`` times a power of two), occupied where any
+    of theirs is: OctoMap's inner nodes at a coarser depth (the key offset is a power of two,
+    so they are the same cubes)."""
+    factor = size / resolution
+    power = round(math.log2(factor)) if factor > 0 else -1
+    if power < 0 or abs(factor - 2**power) > 1e-6 * factor:
+        choices = ", ".join(f"{resolution * 2**i:g}" for i in range(4))
+        raise InputError(
+            source,
+            f"world.voxel_size {size:g} m is not the octree's {resolution:g} m times a power of"
+            f" two ({choices}, ...)",
+        )
+    if power == 0:
+        return lattice, resolution, rgb
+    coarse, inverse = np.unique(np.floor_divide(lattice, 2**power), axis=0, return_inverse=True)
+    if rgb is None:
+        return coarse, resolution * 2**power, None
+    inverse = inverse.reshape(-1)
+    sums = np.zeros((len(coarse), 3), np.int64)
+    np.add.at(sums, inverse, rgb.astype(np.int64))
+    count = np.bincount(inverse, minlength=len(coarse))[:, None]
+    mean = ((2 * sums + count) // (2 * count)).astype(np.uint8)  # rounded half up
+    return coarse, resolution * 2**power, mean
