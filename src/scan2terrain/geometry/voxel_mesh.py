@@ -525,9 +525,14 @@ def _between(  # noqa: PLR0917 - the query's arrays, in the order the docstring 
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """For each query (line ``q_key``, span ``lo``..``hi``), the points (``key``, ``along``)
     strictly inside it: the first one's position in the returned order, and their count."""
-    _, _, ids = _unique_rows(np.concatenate([key, q_key])[:, None])
-    p_code = ids[: len(key)] * w + along
-    q_ids = ids[len(key) :]
+    top = max(int(key.max(initial=0)), int(q_key.max(initial=0))) + 1
+    if float(top) * w < 2.0**62:  # line keys and positions pack into one int64 as they are
+        p_code = key * w + along
+        q_ids = q_key
+    else:  # pragma: no cover - lattices wider than OctoMap's 2^16 keys a side
+        _, _, ids = _unique_rows(np.concatenate([key, q_key])[:, None])
+        p_code = ids[: len(key)] * w + along
+        q_ids = ids[len(key) :]
     order = np.argsort(p_code, kind="stable")
     sorted_code = p_code[order]
     first = np.searchsorted(sorted_code, q_ids * w + lo, side="right")

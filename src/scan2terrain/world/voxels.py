@@ -84,6 +84,8 @@ def voxel_mesh_world(
 
     o, w = cfg.octree, cfg.world
     solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
+    if len(solid) == 0:
+        raise InputError(source, "the octree holds no occupied voxel: nothing to make a world of")
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
     centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
