@@ -303,3 +303,18 @@ def test_fr079_scans_become_a_closed_voxel_world(tmp_path: Path) -> None:
     # Exact up to the 1 mm hair where voxels touch only at an edge or corner (many, in a
     # sparse scan): no vertex moves farther, so the volume moves by at most 1 mm x the area.
     assert abs(volume - occupied * 0.1**3) <= 1e-3 * area
+
+
+def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
+    """A LaserScan bag ray cast into the octree, its occupied voxels meshed."""
+    bag = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom"
+    out = tmp_path / "w"
+    args = ["bag2world", str(bag), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
+            "--resolution", "0.05", "-q"]  # fmt: skip
+    assert main(args) == 0
+    stls = _stls(out)
+    assert stls
+    for stl in stls:
+        m = trimesh.load(stl)
+        assert m.is_watertight and m.is_winding_consistent
+    assert (out / "octree.bt").is_file() and (out / "map" / "map_gz.yaml").is_file()
