@@ -60,3 +60,5 @@ if [ "$extra" = "test" ]; then
 else
   pip_install .
 fi
+# Compile the numba kernels into numba's cache now, not during the user's first command.
+.venv/bin/python -m scan2terrain.warmup

@@ -18,6 +18,9 @@ from scan2terrain.config import load_config
 if TYPE_CHECKING:
     from scan2terrain.config import Config
 
+#: Commands whose work runs in numba kernels (compiled on a first run, see warmup.py).
+NUMBA_COMMANDS = ("octree2world", "bag2world", "cloud2world")
+
 __all__ = ["COMMAND_DEFAULTS", "build_parser", "main", "report"]
 
 
@@ -96,6 +99,16 @@ def _run(args: argparse.Namespace) -> int:
     side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
     if out is not None and side_inputs:  # files besides the command's input never go either
         refuse_existing(out, args.overwrite, tuple(side_inputs))
+    if args.command in NUMBA_COMMANDS and not args.quiet:
+        from scan2terrain.warmup import cold
+
+        if cold():
+            print(
+                "scan2terrain: first run: compiling the numba kernels into numba's cache (about"
+                " 30 s, once; `python -m scan2terrain.warmup` does it ahead)",
+                file=sys.stderr,
+                flush=True,
+            )
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":

@@ -1,0 +1,76 @@
+"""After the warm-up (scripts/setup.sh runs it), the commands compile no numba kernel: every
+signature they use is in numba's cache."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import FIXTURES
+
+RUN = """
+import sys, tempfile
+from scan2terrain.cli import main
+from scan2terrain.warmup import dispatchers
+F = sys.argv[1]
+with tempfile.TemporaryDirectory() as t:
+    for args in (
+        ["cloud2world", F + "/clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd", "-o", t + "/a"],
+        ["bag2world", F + "/bags/bag1_fuse_tb3_sim_scan_odom", "-o", t + "/b"],
+        ["bag2world", F + "/bags/bag1_embark_luminar_pointcloud", "-o", t + "/c",
+         "--topic", "/luminar_pointcloud", "--pose", "0", "0", "0", "0", "0", "0",
+         "--resolution", "0.2"],
+        ["octree2world", F + "/octomap/scan.dat.bz2", "-o", t + "/d", "--resolution", "0.2"],
+        ["cloud2world", F + "/clouds/pc_laz_autzen_trim/autzen_trim.laz", "-o", t + "/e",
+         "--stream", "--resolution", "2", "--grid", "height"],
+        ["map2world", F + "/maps/map_tb3_world_mapsaver/map.yaml", "-o", t + "/f",
+         "--simplify", "0.05"],
+    ):
+        assert main([*args, "-q"]) == 0, args
+misses = {d.__name__: dict(d.stats.cache_misses) for d in dispatchers() if d.stats.cache_misses}
+print(misses)
+"""
+
+
+def test_commands_after_the_warm_up_compile_nothing() -> None:
+    py = sys.executable
+    subprocess.run([py, "-m", "scan2terrain.warmup"], check=True, capture_output=True)
+    done = subprocess.run(
+        [py, "-c", RUN, str(FIXTURES)], check=True, capture_output=True, text=True
+    )
+    assert done.stdout.strip() == "{}", done.stdout  # kernels compiled in this process
+    from scan2terrain.warmup import cold
+
+    assert not cold()
+
+
+def test_every_kernel_module_is_listed() -> None:
+    """A new kernel module must join KERNEL_MODULES, or the warm-up would leave it cold."""
+    from scan2terrain.warmup import KERNEL_MODULES
+
+    src = Path(__file__).resolve().parent.parent / "src"
+    jitted = {
+        ".".join(p.relative_to(src).with_suffix("").parts)
+        for p in src.rglob("*.py")
+        if "njit(" in p.read_text()
+    }
+    jitted.discard("scan2terrain.octree._kernels")  # its serial set is built from the others
+    assert jitted <= set(KERNEL_MODULES), jitted - set(KERNEL_MODULES)
+
+
+def test_a_cold_cache_is_announced_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scan2terrain import warmup
+    from scan2terrain.cli import main
+
+    monkeypatch.setattr(warmup, "cold", lambda: True)
+    tree = str(FIXTURES / "octomap/geb079.bt")
+    assert main(["octree2world", tree, "-o", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len([line for line in err if "compiling the numba kernels" in line]) == 1
+    assert main(["octree2world", tree, "-o", str(tmp_path / "b"), "-q"]) == 0
+    assert capsys.readouterr().err == ""
