@@ -1,6 +1,6 @@
 """bag2world on a PointCloud2 bag, beside rosbags reading the same bag (by hand, not a test).
 
-    python benchmarks/bench_bag2world.py [--quick] [--cache DIR] [--formats mcap,ros1]
+    python benchmarks/bench_bag2world.py [--quick] [--cache DIR] [--formats mcap,ros1,mcap-ros1]
 
 The data: a synthetic place, a 40 x 20 x 4 m hall (walls and floor, no roof) with pillars and
 crates (axis-aligned boxes), and a lidar on a robot driving an ellipse through it. Each cloud is
@@ -113,7 +113,11 @@ TOPIC = "/points"
 RESOLUTION = 0.1
 #: Bumped when the scene or the writer changes (part of the cached bags' names).
 BAG_VERSION = 1
-FORMAT_NAMES = {"mcap": "rosbag2 MCAP (no compression)", "ros1": "ROS1 .bag (uncompressed)"}
+FORMAT_NAMES = {
+    "mcap": "rosbag2 MCAP (no compression)",
+    "ros1": "ROS1 .bag (uncompressed)",
+    "mcap-ros1": "ROS1 MCAP (profile ros1, no compression)",
+}
 
 
 def _cast_kernel() -> Any:
@@ -304,6 +308,13 @@ def write_bag(path: Path, fmt: str, lap: Lap, laps: int) -> float:
     from rosbags.rosbag2 import Writer as Writer2
 
     bm = _bagmaker()
+    if fmt == "mcap-ros1":  # the ROS1 bag rewritten, as `mcap convert` does (tests/bagmaker.py)
+        t0 = time.perf_counter()
+        ros1 = path.with_name(path.stem + ".tmp.bag")
+        write_bag(ros1, "ros1", lap, laps)
+        bm.ros1_bag_to_mcap(ros1, path, compression="none", chunk_size=1 << 20)
+        ros1.unlink()
+        return time.perf_counter() - t0
     t0 = time.perf_counter()
     ts = bm.typestore("ros1" if fmt == "ros1" else "mcap")
     serialize = ts.serialize_ros1 if fmt == "ros1" else ts.serialize_cdr
@@ -380,6 +391,36 @@ def rosbags_alone(bag: Path, *, deserialise: bool) -> int:
         for conn, _, raw in reader.messages(reader.connections):
             if deserialise:
                 reader.deserialize(raw, conn.msgtype)
+            n += 1
+    return n
+
+
+def mcap_alone(bag: Path, *, deserialise: bool) -> int:
+    """What bag2world reads a ROS1 MCAP with (scan2terrain's McapFile on the ``mcap`` package's
+    records, rosbags' ROS1 deserialiser), by itself: every message (and decoded)."""
+    from scan2terrain.readers._mcap import McapFile
+
+    n = 0
+    reader = McapFile(bag)
+    try:
+        for conn, _, raw in reader.messages(reader.connections):
+            if deserialise:
+                reader.decode(conn, raw)
+            n += 1
+    finally:
+        reader.close()
+    return n
+
+
+def mcap_library_alone(bag: Path) -> int:
+    """The ``mcap`` package's own reader and ROS1 decoders (``mcap-ros1-support``, if
+    installed) in a plain loop: ``iter_decoded_messages()`` over every message."""
+    from mcap.reader import make_reader
+    from mcap_ros1.decoder import DecoderFactory  # type: ignore[import-not-found]
+
+    n = 0
+    with bag.open("rb") as f:
+        for _ in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             n += 1
     return n
 
@@ -641,7 +682,8 @@ def bag_path(folder: Path, fmt: str, n: int, laps: int) -> Path:
     scene = repr((BAG_VERSION, RINGS, AZIMUTHS, ELEVATION, RANGE_MAX, POINTS, RATE_HZ, MOUNT))
     digest = hashlib.sha1(scene.encode()).hexdigest()[:8]
     name = f"points_{n}x{laps}_{digest}"
-    return folder / (name + ".bag" if fmt == "ros1" else name)
+    suffix = {"ros1": ".bag", "mcap-ros1": ".mcap"}.get(fmt, "")
+    return folder / (name + suffix)
 
 
 def ensure_bag(folder: Path, fmt: str, n: int, laps: int) -> tuple[Path, str]:
@@ -729,7 +771,7 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
         "(= the CLI's --insert endpoints --resolution 0.1), output overwritten each run"
     )
     print(
-        f"   {'format':<7} {'what':<42} {'best s':>7} {'median':>7} {'cpu s':>6} {'M pts/s':>8} "
+        f"   {'format':<9} {'what':<42} {'best s':>7} {'median':>7} {'cpu s':>6} {'M pts/s':>8} "
         f"{'MiB/s':>6} {'x rosbags':>9} {'target':>7}"
     )
     out = folder / "out"
@@ -737,14 +779,25 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
     for fmt in formats:
         bag = bags[fmt, n_big]
         size = size_of(bag)
-        t_raw = timed(functools.partial(rosbags_alone, bag, deserialise=False), reps_read)
-        t_des = timed(functools.partial(rosbags_alone, bag, deserialise=True), reps_read)
+        alone = mcap_alone if fmt == "mcap-ros1" else rosbags_alone
+        who = "McapFile" if fmt == "mcap-ros1" else "rosbags"
+        t_raw = timed(functools.partial(alone, bag, deserialise=False), reps_read)
+        t_des = timed(functools.partial(alone, bag, deserialise=True), reps_read)
         t_b2w = timed(functools.partial(bag2world, bag, out), reps_b2w)
         with numba_threads(1):
             t_one = timed(functools.partial(bag2world, bag, out), reps_b2w)
         rows: list[tuple[str, Timing, float | None]] = [
-            ("rosbags: read every message", t_raw, None),
-            ("rosbags: read + deserialise every message", t_des, None),
+            (f"{who}: read every message", t_raw, None),
+            (f"{who}: read + deserialise every message", t_des, None),
+        ]
+        if fmt == "mcap-ros1":
+            try:
+                t_lib = timed(functools.partial(mcap_library_alone, bag), reps_read)
+            except ImportError:
+                print("   (mcap-ros1-support is not installed: no row for mcap's own decoders)")
+            else:
+                rows.append(("mcap + mcap_ros1 decoders, plain loop", t_lib, None))
+        rows += [
             ("bag2world --insert endpoints", t_b2w, 10.0),
             ("bag2world, numba 1 thread", t_one, None),
         ]
@@ -754,7 +807,7 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
         for what, t, target in rows:
             rate = n_pts / t.best / 1e6
             line = (
-                f"   {fmt:<7} {what:<42} {t.best:7.3f} {t.median:7.3f} {t.cpu:6.2f} {rate:8.2f} "
+                f"   {fmt:<9} {what:<42} {t.best:7.3f} {t.median:7.3f} {t.cpu:6.2f} {rate:8.2f} "
                 f"{size / 2**20 / t.best:6.0f} {t.best / t_des.best:9.2f}"
             )
             if target is not None:
@@ -771,7 +824,7 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
         if fmt == "mcap":  # the CLI's fixed start-up cost (imports, numba cache): a 3-cloud bag
             start = run_cli(warm / "warm_up", folder / "out_cli_small")
             label = "CLI on a 3-cloud bag (its start-up cost)"
-            print(f"   {fmt:<7} {label:<42} {start.best:7.3f} {'':>7} {start.cpu:6.2f}")
+            print(f"   {fmt:<9} {label:<42} {start.best:7.3f} {'':>7} {start.cpu:6.2f}")
         rate = n_pts / t_des.best / 1e6
         summary.append((f"  rosbags alone {fmt} (same run)", f"{rate:.2f} M/s", "reference", None))
         acc: dict[str, float] = {}
@@ -874,8 +927,8 @@ def main() -> None:
     parser.add_argument(
         "--formats",
         default=None,
-        help="comma-separated bag formats for the throughput part: mcap, ros1 "
-        "(default: mcap,ros1; --quick: mcap)",
+        help="comma-separated bag formats for the throughput part: mcap, ros1, mcap-ros1 "
+        "(the ROS1 bag rewritten as ROS1 MCAP) (default: mcap,ros1; --quick: mcap)",
     )
     parser.add_argument("--child", nargs=3, metavar=("BAG", "OUT", "WARM"), help=argparse.SUPPRESS)
     args = parser.parse_args()

@@ -696,3 +696,70 @@ def synthetic_room(
         segments=segments,
         heights=heights,
     )
+
+
+# --- ROS1 bags rewritten as MCAP (what `mcap convert` makes of them) ------------------------------
+
+McapCompression = Literal["zstd", "lz4", "none"]
+
+
+def ros1_bag_to_mcap(
+    bag: Path,
+    out: Path,
+    *,
+    compression: McapCompression = "zstd",
+    summary: bool = True,
+    chunked: bool = True,
+    chunk_size: int = 256 * 1024,
+) -> Path:
+    """Rewrite a ROS1 ``.bag`` as a ROS1 MCAP file (profile ``ros1``), as ``mcap convert`` does.
+
+    One channel per connection (message encoding ``ros1``, its ``md5sum`` and ``callerid`` in the
+    metadata), one ``ros1msg`` schema per type (the ROS1 name, ``sensor_msgs/LaserScan``, and
+    the connection's full definition text), the raw ROS1 bytes and log times of every message,
+    in the order rosbags reads them. ``summary=False`` writes no summary section at all (no
+    statistics, indexes, or repeated schemas: a streaming writer's file); ``chunked=False``
+    writes the messages as top-level records.
+    """
+    from mcap.writer import CompressionType, IndexType
+    from mcap.writer import Writer as McapWriter
+    from rosbags.interfaces import ConnectionExtRosbag1
+    from rosbags.rosbag1 import Reader as Reader1
+
+    kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+    options: dict[str, Any] = {}
+    if not summary:
+        options = {
+            "index_types": IndexType.NONE,
+            "repeat_channels": False,
+            "repeat_schemas": False,
+            "use_statistics": False,
+            "use_summary_offsets": False,
+        }
+    with Reader1(bag) as reader, out.open("wb") as f:
+        writer = McapWriter(
+            f,
+            chunk_size=chunk_size,
+            compression=kinds[compression],
+            use_chunking=chunked,
+            **options,
+        )
+        writer.start(profile="ros1", library="scan2terrain tests")
+        schemas: dict[str, int] = {}
+        channels: dict[int, int] = {}
+        for conn in reader.connections:
+            ros1_name = conn.msgtype.replace("/msg/", "/")
+            if ros1_name not in schemas:
+                schemas[ros1_name] = writer.register_schema(
+                    ros1_name, "ros1msg", conn.msgdef.data.encode()
+                )
+            meta = {"md5sum": conn.digest}
+            if isinstance(conn.ext, ConnectionExtRosbag1) and conn.ext.callerid:
+                meta["callerid"] = conn.ext.callerid
+            channels[conn.id] = writer.register_channel(
+                conn.topic, "ros1", schemas[ros1_name], meta
+            )
+        for seq, (conn, t_ns, raw) in enumerate(reader.messages()):
+            writer.add_message(channels[conn.id], int(t_ns), bytes(raw), int(t_ns), seq)
+        writer.finish()  # type: ignore[no-untyped-call]
+    return out

@@ -152,6 +152,8 @@ def test_inspect_synthetic_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert code == 0 and err == ""
     lines = stdout.splitlines()
     assert lines[0] == str(bag)
+    assert lines[1].startswith("  ") and "read with rosbags" in lines[1]  # what read the bag
+    lines = [lines[0], *lines[2:]]
     assert lines[1] == (
         f"  duration {(max(times) - min(times)) / 1e9:.3f} s, {len(times)} messages, "
         f"start {min(times) / 1e9:.3f} (UNIX s)"

@@ -226,6 +226,7 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
     with open_bag(list(bags)) as bag:
         lines = [
             f"{bag.path}",
+            f"  {bag.container.describe()}",
             f"  duration {bag.duration_s:.3f} s, {bag.message_count} messages, "
             f"start {bag.start_ns / 1e9:.3f} (UNIX s)",
             "  topics:",
@@ -234,6 +235,8 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
         for name in sorted(bag.topics):
             t = bag.topics[name]
             lines.append(f"    {name:<{width}}  {t.count:>7}  {t.msgtype}")
+            if how := bag.container.encodings.get(name):
+                lines.append(f"    {'':<{width}}  {'':>7}  ({how})")
         for topic, reason in bag.skipped.items():
             lines.append(f"  skipped: {topic}: {reason}")
         if bag.topics_of_type(TF_TYPES):

@@ -39,10 +39,11 @@ from decimal import Decimal, InvalidOperation
 from functools import lru_cache
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
+from rosbags.interfaces import TopicInfo as _RosbagsTopic
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
@@ -54,9 +55,12 @@ from scan2terrain.readers._bag_errors import (
     _undecodable,
 )
 from scan2terrain.readers._bag_source import _Source, _source
+from scan2terrain.readers._mcap import McapFile, mcap_profile
 from scan2terrain.types import normalise_frame
 
 if TYPE_CHECKING:
+    from collections.abc import Collection, Mapping
+
     from rosbags.typesys.store import Typestore
 
 __all__ = [
@@ -70,6 +74,7 @@ __all__ = [
     "TF_TYPES",
     "Bag",
     "BagWarning",
+    "Container",
     "TopicInfo",
     "open_bag",
     "resolve_time",
@@ -119,6 +124,90 @@ def _default_typestore() -> Typestore:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
+# --- the readers behind a bag ---------------------------------------------------------------------
+
+
+class _Reader(Protocol):
+    """What :class:`Bag` reads through: rosbags' ``AnyReader`` (:class:`_Rosbags`) or, for MCAP
+    files that are not rosbag2's, :class:`~scan2terrain.readers._mcap.McapFile`."""
+
+    @property
+    def start_time(self) -> int: ...
+    @property
+    def end_time(self) -> int: ...  # one past the last message
+    @property
+    def topics(self) -> Mapping[str, _RosbagsTopic]: ...
+    @property
+    def connections(self) -> list[Connection]: ...
+    def messages(
+        self,
+        connections: Collection[Connection] = (),
+        start: int | None = None,
+        stop: int | None = None,
+    ) -> Iterator[tuple[Connection, int, bytes | memoryview]]: ...
+    def decode(self, conn: Connection, raw: bytes | memoryview) -> object: ...
+    def undecodable(self, conn: Connection) -> str | None: ...
+
+
+class _Rosbags(AnyReader):
+    """rosbags' AnyReader with the two calls :class:`_Reader` adds: decoding by connection
+    (ROS1 or CDR as the bag is), and why a connection's type cannot be decoded."""
+
+    def decode(self, conn: Connection, raw: bytes | memoryview) -> object:
+        if self.is2:
+            return self.typestore.deserialize_cdr(raw, conn.msgtype)
+        return self.typestore.deserialize_ros1(raw, conn.msgtype)
+
+    def undecodable(self, conn: Connection) -> str | None:
+        return _undecodable(self.typestore, conn.msgtype)
+
+
+@dataclass(frozen=True)
+class Container:
+    """What kind of file a bag is, and per topic how it is encoded and read (for ``inspect``).
+
+    Attributes
+    ----------
+    kind : str
+        ``ROS1 bag``, ``rosbag2``, or ``MCAP``.
+    profile : str or None
+        An MCAP file's header profile (``ros1``, ``ros2``, ``""``); None for the others.
+    reader : str
+        Which code reads it: ``rosbags`` or ``mcap`` (the ``mcap`` package's records).
+    encodings : dict of str to str
+        Per topic (MCAP files read with ``mcap`` only): ``"ros1 / ros1msg sensor_msgs/LaserScan,
+        decoded as ROS1 (rosbags)"`` or the reason it is not read.
+    """
+
+    kind: str
+    profile: str | None
+    reader: str
+    encodings: dict[str, str]
+
+    def describe(self) -> str:
+        """One line: ``MCAP, profile 'ros1', read with mcap``."""
+        profile = "" if self.profile is None else f", profile {self.profile!r}"
+        return f"{self.kind}{profile}, read with {self.reader}"
+
+
+def _container(reader: _Reader, source: _Source) -> Container:
+    if isinstance(reader, McapFile):
+        encodings: dict[str, str] = {}
+        for conn in reader.connections:
+            message, schema_name, schema = reader.encodings(conn)
+            why = reader.undecodable(conn)
+            how = f"not read: {why}" if why else f"decoded as {reader.decoder_label(conn)}"
+            text = f"{message} / {schema or 'no schema'} {schema_name}".rstrip()
+            encodings.setdefault(conn.topic, f"{text}, {how}")
+        return Container("MCAP", reader.profile, "mcap", encodings)
+    read = source.read[0]
+    if read.is_dir():
+        return Container("rosbag2", None, "rosbags", {})
+    if read.suffix == ".mcap":
+        return Container("MCAP", mcap_profile(read), "rosbags", {})
+    return Container("ROS1 bag" if read.suffix == ".bag" else "rosbag2", None, "rosbags", {})
+
+
 # --- the bag --------------------------------------------------------------------------------------
 
 
@@ -140,8 +229,9 @@ class Bag:
         Topics whose messages cannot be deserialised, with the reason.
     """
 
-    def __init__(self, reader: AnyReader, source: _Source, stack: ExitStack) -> None:
+    def __init__(self, reader: _Reader, source: _Source, stack: ExitStack) -> None:
         self._reader = reader
+        self.container = _container(reader, source)
         self._stack = stack
         self.paths = source.paths
         self._given = {str(r): p for r, p in zip(source.read, source.paths, strict=True)}
@@ -156,8 +246,8 @@ class Bag:
             self._connections[conn.topic].append(conn)
         self.skipped: dict[str, str] = {}
         for name, conns in self._connections.items():
-            for msgtype in sorted({c.msgtype for c in conns}):
-                if reason := _undecodable(reader.typestore, msgtype):
+            for conn in sorted(conns, key=lambda c: c.msgtype):
+                if reason := reader.undecodable(conn):
                     self.skipped[name] = reason
 
     # context manager -------------------------------------------------------------------------
@@ -267,7 +357,7 @@ class Bag:
 
     def _raw(
         self, conns: list[Connection], start_ns: int | None, end_ns: int | None
-    ) -> Iterator[tuple[Connection, int, bytes]]:
+    ) -> Iterator[tuple[Connection, int, bytes | memoryview]]:
         stop = None if end_ns is None else end_ns + 1  # rosbags' stop is exclusive
         try:
             it = self._reader.messages(conns, start=start_ns, stop=stop)
@@ -323,10 +413,10 @@ class Bag:
     def _decoded(
         self, conns: list[Connection], start_ns: int | None, end_ns: int | None
     ) -> Iterator[tuple[str, int, object]]:
-        deserialize = self._reader.deserialize
+        decode = self._reader.decode
         for conn, t_ns, raw in self._raw(conns, start_ns, end_ns):
             try:
-                msg = deserialize(raw, conn.msgtype)
+                msg = decode(conn, raw)
             except Exception as exc:  # a damaged message: its bytes do not fit the definition
                 raise InputError(
                     self._owner([conn]),
@@ -429,13 +519,17 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     try:
         source = _source(path, stack)
         where = source.paths[0]
-        try:
-            reader = AnyReader(list(source.read), default_typestore=_default_typestore())
-            if not reader.is2:
-                reader.readers = [_Ros1Reader(p) for p in source.read]
-            reader.open()
-        except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
-            raise InputError(_culprit(source, where), _explain(exc)) from exc
+        reader: _Rosbags | McapFile
+        if len(source.read) == 1 and mcap_profile(source.read[0]) not in (None, "ros2"):
+            reader = McapFile(source.read[0], where)  # rosbags reads only profile ros2
+        else:
+            try:
+                reader = _Rosbags(list(source.read), default_typestore=_default_typestore())
+                if not reader.is2:
+                    reader.readers = [_Ros1Reader(p) for p in source.read]
+                reader.open()
+            except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
+                raise InputError(_culprit(source, where), _explain(exc)) from exc
         stack.callback(reader.close)
         if reader.message_count == 0:
             raise InputError(where, "the bag holds no messages")
@@ -443,7 +537,8 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     except BaseException:
         stack.close()
         raise
-    for r, p in zip(reader.readers, source.paths, strict=True):
+    readers = reader.readers if isinstance(reader, _Rosbags) else [reader]
+    for r, p in zip(readers, source.paths, strict=True):
         if isinstance(r, _Ros1Reader) and r.rebuilt_chunks:
             warnings.warn(
                 BagWarning(

@@ -1,0 +1,680 @@
+"""MCAP files that are not rosbag2's: ROS1 in MCAP (and CDR without the ``ros2`` profile).
+
+For :func:`scan2terrain.readers.bag.open_bag`, which sends here every MCAP file whose header
+profile is not ``ros2`` (rosbags' own reader refuses those: "Profile is not ros2"). A
+:class:`McapFile` offers what :class:`~scan2terrain.readers.bag.Bag` asks of rosbags'
+``AnyReader`` (connections, topics, time span, raw messages in log-time order, decoding), so
+every decoder downstream sees exactly the objects the ROS1 ``.bag`` path gives. Choices:
+
+* **Records with the** ``mcap`` **package.** Header, footer, schema, channel, chunk, chunk index
+  and statistics records are parsed by ``mcap.records``. The file is walked here, not through
+  ``mcap.reader``: its ``SeekingReader`` loads whole summary-less files into memory to sort them,
+  allocates what a corrupt length field claims (up to 4 GiB a record), and decompresses chunks
+  without a limit. Messages inside a chunk are split with one ``struct`` call each (the hot
+  loop; ``mcap.records.Message.read`` costs five reads and a dataclass per message).
+* **Indexed or not.** With a summary that has statistics and a chunk index, the index says
+  which chunks hold which channels and when; without (a summary-less, streaming-written file,
+  or unchunked messages), the data section is read once when the file is opened, chunks
+  decompressed, to count messages and find the schemas and channels. Either way messages are
+  merged in log-time order (ties in file order) chunk by chunk, as ``mcap``'s own reader does,
+  so memory holds the chunks that overlap in time, not the file. Runs of unchunked messages are
+  cut into blocks of at most :data:`RUN_BYTES` that are read like chunks.
+* **Decoding** is per channel, from the pair (message encoding, schema encoding) in
+  :data:`DECODERS`: ``ros1``/``ros1msg`` with rosbags' ROS1 deserialiser and ``cdr`` with
+  ``ros2msg`` or ``ros2idl`` with its CDR one, the schema text registered in a typestore of the
+  file's own, as rosbags does for a ROS1 bag (``roslib/Header`` renamed as in
+  :mod:`scan2terrain.readers._bag_errors`). Type names are ROS 2 style, as rosbags reports them
+  (``sensor_msgs/LaserScan`` -> ``sensor_msgs/msg/LaserScan``). A channel without a schema, or
+  with encodings not in the table, is *skipped* (listed with the reason, as a bag's unknown
+  types are), not fatal: the file may hold usable scans beside it.
+* **Hostile input.** Every length is checked against the file, or its chunk, before anything is
+  read or allocated by it; a chunk's declared size is capped as a whole-file zstd bag is
+  (:data:`~scan2terrain.readers._bag_source.MAX_ZSTD_RATIO` times its compressed size, at least
+  :data:`~scan2terrain.readers._bag_source.MIN_ZSTD_BUDGET`), decompression stops at that size,
+  and chunk CRCs are checked. A truncated file, a damaged record or chunk, a channel that names a
+  schema the file lacks: one :class:`~scan2terrain.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import heapq
+import io
+import struct
+import sys
+import zlib
+from collections import defaultdict
+from collections.abc import Callable, Collection, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, TYPE_CHECKING
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, ChunkIndex, Footer, Header, Schema, Statistics
+from rosbags.interfaces import (
+    Connection,
+    ConnectionExtRosbag1,
+    MessageDefinition,
+    MessageDefinitionFormat,
+    TopicInfo,
+)
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.msg import normalize_msgtype
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._bag_errors import _one_line, _undecodable
+from scan2terrain.readers._bag_source import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET
+
+if sys.version_info >= (3, 14):  # pragma: no cover
+    from compression import zstd
+else:
+    from backports import zstd
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+
+MAGIC = b"\x89MCAP0\r\n"
+#: Unchunked messages are read back in blocks of about this many bytes.
+RUN_BYTES = 4 << 20
+_OPLEN = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQ")  # channel id, sequence, log time (publish time follows)
+_MESSAGE_HEAD_SIZE = 22
+_DAMAGED = "the MCAP file is truncated or damaged"
+
+
+class _Damaged(Exception):
+    """A record that does not fit where it is: said as one line by :class:`McapFile`."""
+
+
+class _Exact(ReadDataStream):
+    """mcap's stream over one record's bytes, failing on a short read (it returns what is
+    there): a length field inside a record that points past the record's end."""
+
+    def read(self, length: int) -> bytes:
+        data = super().read(length)
+        if len(data) != length:
+            raise EndOfFile()
+        return data
+
+
+def _parse(parse: Callable[[ReadDataStream], object], body: bytes, what: str) -> object:
+    try:
+        return parse(_Exact(io.BytesIO(body)))
+    except (EndOfFile, struct.error, UnicodeDecodeError) as exc:
+        raise _Damaged(f"a damaged {what} record") from exc
+
+
+# --- decoders -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Decoder:
+    """How one (message encoding, schema encoding) pair is read.
+
+    ``types``: the schema as rosbags types (name -> parse tree), raising on a bad definition;
+    ``ros1``: whether messages are ROS1 bytes (else CDR).
+    """
+
+    label: str
+    types: Callable[[str, str], dict[str, object]]
+    ros1: bool
+
+
+def _ros1_types(text: str, name: str) -> dict[str, object]:
+    if "\nMSG: roslib/Header\n" in text:  # ROS C-Turtle's Header, as _Ros1Reader renames it
+        text = text.replace("\nMSG: roslib/Header\n", "\nMSG: std_msgs/Header\n")
+    return dict(get_types_from_msg(text, name))
+
+
+def _idl_types(text: str, name: str) -> dict[str, object]:
+    sep = "=" * 80 + "\n"
+    if text.startswith(f"{sep}IDL: "):  # several IDL files, as rosbag2 writes them
+        typs: dict[str, object] = {}
+        for part in text.split(sep)[1:]:
+            typs.update(get_types_from_idl(part.split("\n", 1)[1]))
+        return typs
+    return dict(get_types_from_idl(text))
+
+
+#: What can be decoded: (channel message encoding, schema encoding) -> decoder.
+DECODERS: dict[tuple[str, str], _Decoder] = {
+    ("ros1", "ros1msg"): _Decoder("ROS1 (rosbags)", _ros1_types, ros1=True),
+    ("cdr", "ros2msg"): _Decoder(
+        "CDR (rosbags)", lambda t, n: dict(get_types_from_msg(t, n)), False
+    ),
+    ("cdr", "ros2idl"): _Decoder("CDR (rosbags)", _idl_types, ros1=False),
+}
+
+
+def supported() -> str:
+    """The encodings :data:`DECODERS` reads, for messages: ``ros1/ros1msg, cdr/ros2msg``."""
+    return ", ".join(f"{m}/{s}" for m, s in DECODERS)
+
+
+# --- the file's layout ----------------------------------------------------------------------------
+
+
+@dataclass
+class _Block:
+    """Messages read as one: a chunk record, or a run of top-level message records."""
+
+    offset: int  #: of the chunk record, or of the run's first record
+    end: int  #: just past the last record
+    start_ns: int
+    end_ns: int
+    channels: set[int] | None  #: None: not known without reading it
+    chunk: bool
+
+
+@dataclass
+class _Layout:
+    profile: str = ""
+    library: str = ""
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=lambda: defaultdict(int))
+    blocks: list[_Block] = field(default_factory=list)
+    start_ns: int | None = None
+    end_ns: int | None = None
+    indexed: bool = False
+
+    def saw(self, t_ns: int) -> None:
+        self.start_ns = t_ns if self.start_ns is None else min(self.start_ns, t_ns)
+        self.end_ns = t_ns if self.end_ns is None else max(self.end_ns, t_ns)
+
+
+def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, int]]:
+    """``(offset, opcode, length)`` of each record in ``[start, stop)``, ``f`` left at its
+    body; a record that does not fit before ``stop`` is damage."""
+    pos = start
+    while pos < stop:
+        f.seek(pos)
+        head = f.read(9)
+        if len(head) < 9:
+            raise _Damaged("a record is cut short")
+        opcode, length = _OPLEN.unpack(head)
+        if length > stop - pos - 9:
+            raise _Damaged(f"a record claims {length:,} bytes, more than the file holds there")
+        yield pos, opcode, length
+        pos += 9 + length
+
+
+_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+
+
+def _read_chunk(body: bytes) -> Chunk:
+    """mcap's :class:`~mcap.records.Chunk` of a chunk record's body, its ``data`` a view into
+    ``body`` (``Chunk.read`` copies the data once more: a third of the read time here)."""
+    if len(body) < _CHUNK_HEAD.size:
+        raise _Damaged("a damaged chunk record")
+    start, end, size, crc, n = _CHUNK_HEAD.unpack_from(body)
+    at = _CHUNK_HEAD.size + n
+    if at + 8 > len(body):
+        raise _Damaged("a damaged chunk record")
+    (length,) = struct.unpack_from("<Q", body, at)
+    if at + 8 + length > len(body):
+        raise _Damaged("a chunk's data runs past its record")
+    try:
+        compression = bytes(body[_CHUNK_HEAD.size : at]).decode()
+    except UnicodeDecodeError as exc:
+        raise _Damaged("a damaged chunk record") from exc
+    data = memoryview(body)[at + 8 : at + 8 + length]
+    return Chunk(compression, data, end, start, crc, size)  # type: ignore[arg-type]
+
+
+def _chunk_bytes(chunk: Chunk) -> memoryview:
+    """A chunk's records, decompressed under the cap and checked against its CRC."""
+    size = chunk.uncompressed_size
+    limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * len(chunk.data))
+    if size > limit:
+        raise _Damaged(
+            f"a chunk claims {size:,} bytes, more than {MAX_ZSTD_RATIO} times its "
+            f"{len(chunk.data):,} compressed (a corrupt size, or a zstd bomb?)"
+        )
+    kind = chunk.compression
+    try:
+        if kind == "" or size == 0:
+            data = chunk.data if kind == "" else b""
+        elif kind == "zstd":
+            dz = zstd.ZstdDecompressor()
+            data = dz.decompress(chunk.data, max_length=size)
+            if not dz.eof:
+                raise _Damaged("a zstd chunk holds more than its stated size, or is cut short")
+        elif kind == "lz4":
+            import lz4.frame  # type: ignore[import-untyped]
+
+            dl = lz4.frame.LZ4FrameDecompressor()
+            data = dl.decompress(chunk.data, max_length=size)
+            if not dl.eof:
+                raise _Damaged("an lz4 chunk holds more than its stated size, or is cut short")
+        else:
+            raise _Damaged(
+                f"a chunk is compressed with {kind!r}; MCAP chunks are read with lz4, zstd or none"
+            )
+    except (zstd.ZstdError, RuntimeError, ValueError, EOFError) as exc:  # lz4 raises RuntimeError
+        raise _Damaged(f"a {kind} chunk cannot be decompressed ({_one_line(str(exc))})") from exc
+    if len(data) != size:
+        raise _Damaged(f"a chunk holds {len(data):,} bytes, not the {size:,} it states")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise _Damaged("a chunk fails its CRC check (corrupt data)")
+    return memoryview(data)
+
+
+def _split(data: bytes | memoryview) -> Iterator[tuple[int, int, int, int]]:
+    """``(opcode, body start, body end, log time or -1)`` of each record in a chunk's bytes;
+    for messages the body starts at the payload and the channel id is packed in the opcode's
+    place as ``opcode | channel << 8``."""
+    pos, n = 0, len(data)
+    oplen, head = _OPLEN.unpack_from, _MESSAGE_HEAD.unpack_from
+    message = Opcode.MESSAGE
+    while pos < n:
+        if pos + 9 > n:
+            raise _Damaged("a chunk's last record is cut short")
+        opcode, length = oplen(data, pos)
+        body, end = pos + 9, pos + 9 + length
+        if end > n:
+            raise _Damaged(f"a record in a chunk claims {length:,} bytes, past the chunk's end")
+        if opcode == message:
+            if length < _MESSAGE_HEAD_SIZE:
+                raise _Damaged("a message record shorter than its header")
+            channel, _, log_time = head(data, body)
+            yield message | channel << 8, body + _MESSAGE_HEAD_SIZE, end, log_time
+        else:
+            yield opcode, body, end, -1
+        pos = end
+
+
+# --- the reader -----------------------------------------------------------------------------------
+
+
+class McapFile:
+    """One MCAP file, opened for :class:`~scan2terrain.readers.bag.Bag` (the part of rosbags'
+    ``AnyReader`` it uses: ``connections``, ``topics``, ``start_time``, ``end_time`` (one past
+    the last message), ``message_count``, ``messages``, and ``decode``/``undecodable``).
+
+    Raises
+    ------
+    InputError
+        Truncated or damaged (one line naming ``path``).
+    """
+
+    def __init__(self, path: Path, named: Path | None = None) -> None:
+        self.path = path
+        self._named = named or path
+        self._f: IO[bytes] = path.open("rb")
+        try:
+            self._layout = self._read_layout()
+            self._connections()
+        except _Damaged as exc:
+            self._f.close()
+            raise InputError(self._named, f"{_DAMAGED}: {exc}") from None
+        except BaseException:
+            self._f.close()
+            raise
+
+    # what the file holds ---------------------------------------------------------------------
+
+    @property
+    def profile(self) -> str:
+        return self._layout.profile
+
+    @property
+    def library(self) -> str:
+        return self._layout.library
+
+    @property
+    def indexed(self) -> bool:
+        """Whether the summary's index was used (else the data section was scanned)."""
+        return self._layout.indexed
+
+    @property
+    def start_time(self) -> int:
+        return self._layout.start_ns or 0
+
+    @property
+    def end_time(self) -> int:
+        return (self._layout.end_ns or 0) + 1
+
+    @property
+    def message_count(self) -> int:
+        return sum(self._layout.counts.values())
+
+    def _read_layout(self) -> _Layout:
+        f = self._f
+        size = f.seek(0, io.SEEK_END)
+        f.seek(0)
+        if f.read(8) != MAGIC:
+            raise _Damaged("it does not start with the MCAP magic")
+        footer_at = size - 8 - 9 - 20
+        if footer_at < 8:
+            raise _Damaged("too short to hold a header and a footer")
+        f.seek(size - 8)
+        if f.read(8) != MAGIC:
+            raise _Damaged("its end marker is missing")
+        layout = _Layout()
+        records = _records(f, 8, footer_at)
+        _, opcode, length = next(records)
+        if opcode != Opcode.HEADER:
+            raise _Damaged("its first record is not a header")
+        header = _parse(Header.read, f.read(length), "header")
+        assert isinstance(header, Header)
+        layout.profile, layout.library = header.profile, header.library
+        f.seek(footer_at)
+        opcode, length = _OPLEN.unpack(f.read(9))
+        if opcode != Opcode.FOOTER or length != 20:
+            raise _Damaged("its footer is missing")
+        footer = _parse(Footer.read, f.read(20), "footer")
+        assert isinstance(footer, Footer)
+        if footer.summary_start and self._read_summary(layout, footer, footer_at):
+            return layout
+        layout.counts.clear()
+        layout.blocks.clear()
+        self._scan(layout, footer_at)
+        return layout
+
+    def _read_summary(self, layout: _Layout, footer: Footer, footer_at: int) -> bool:
+        """The schemas, channels, counts and chunks from the summary: False when it lacks
+        statistics or a chunk index (the data section is scanned then)."""
+        if not 8 <= footer.summary_start <= footer_at:
+            raise _Damaged("its footer points outside the file")
+        stats: Statistics | None = None
+        chunks: list[ChunkIndex] = []
+        for _, opcode, length in _records(self._f, footer.summary_start, footer_at):
+            if opcode == Opcode.SCHEMA:
+                schema = _parse(Schema.read, self._f.read(length), "schema")
+                assert isinstance(schema, Schema)
+                layout.schemas[schema.id] = schema
+            elif opcode == Opcode.CHANNEL:
+                channel = _parse(Channel.read, self._f.read(length), "channel")
+                assert isinstance(channel, Channel)
+                layout.channels[channel.id] = channel
+            elif opcode == Opcode.STATISTICS:
+                read = _parse(Statistics.read, self._f.read(length), "statistics")
+                assert isinstance(read, Statistics)
+                stats = read
+            elif opcode == Opcode.CHUNK_INDEX:
+                index = _parse(ChunkIndex.read, self._f.read(length), "chunk index")
+                assert isinstance(index, ChunkIndex)
+                chunks.append(index)
+        if stats is None or not chunks or stats.chunk_count != len(chunks):
+            return False
+        if any(c not in layout.channels for i in chunks for c in i.message_index_offsets):
+            return False  # channels only defined in the chunks
+        for i in chunks:
+            end = i.chunk_start_offset + i.chunk_length
+            if not 8 <= i.chunk_start_offset < end <= footer_at:
+                raise _Damaged("its chunk index points outside the file")
+            channels = set(i.message_index_offsets) or None
+            times = (i.message_start_time, i.message_end_time)
+            layout.blocks.append(_Block(i.chunk_start_offset, end, *times, channels, chunk=True))
+        layout.counts.update(stats.channel_message_counts)
+        if stats.message_count:
+            layout.saw(stats.message_start_time)
+            layout.saw(stats.message_end_time)
+        layout.indexed = True
+        return True
+
+    def _scan(self, layout: _Layout, stop: int) -> None:
+        """Every record of the data section, once: schemas, channels, counts, blocks."""
+        f = self._f
+        run: _Block | None = None
+        for offset, opcode, length in _records(f, 8, stop):
+            if opcode == Opcode.MESSAGE:
+                if length < _MESSAGE_HEAD_SIZE:
+                    raise _Damaged("a message record shorter than its header")
+                channel, _, t_ns = _MESSAGE_HEAD.unpack(f.read(14))
+                if run is None or offset - run.offset > RUN_BYTES:
+                    run = _Block(offset, offset, t_ns, t_ns, set(), chunk=False)
+                    layout.blocks.append(run)
+                run.end = offset + 9 + length
+                run.start_ns, run.end_ns = min(run.start_ns, t_ns), max(run.end_ns, t_ns)
+                assert run.channels is not None
+                run.channels.add(channel)
+                layout.counts[channel] += 1
+                layout.saw(t_ns)
+                continue
+            run = None
+            if opcode == Opcode.CHUNK:
+                chunk = _read_chunk(f.read(length))
+                block = _Block(offset, offset + 9 + length, 0, 0, set(), chunk=True)
+                times = self._scan_chunk(layout, _chunk_bytes(chunk), block)
+                if times:
+                    block.start_ns, block.end_ns = min(times), max(times)
+                    layout.blocks.append(block)
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                self._define(layout, opcode, f.read(length))
+            elif opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                break
+
+    def _scan_chunk(self, layout: _Layout, data: memoryview, block: _Block) -> list[int]:
+        times = []
+        assert block.channels is not None
+        for op, body, end, t_ns in _split(data):
+            if t_ns >= 0:
+                channel = op >> 8
+                block.channels.add(channel)
+                layout.counts[channel] += 1
+                layout.saw(t_ns)
+                times.append(t_ns)
+            elif op in (Opcode.SCHEMA, Opcode.CHANNEL):
+                self._define(layout, op, bytes(data[body:end]))
+        return times
+
+    @staticmethod
+    def _define(layout: _Layout, opcode: int, body: bytes) -> None:
+        if opcode == Opcode.SCHEMA:
+            schema = _parse(Schema.read, body, "schema")
+            assert isinstance(schema, Schema)
+            layout.schemas[schema.id] = schema
+        else:
+            channel = _parse(Channel.read, body, "channel")
+            assert isinstance(channel, Channel)
+            layout.channels[channel.id] = channel
+
+    # connections, as rosbags has them ----------------------------------------------------------
+
+    def _connections(self) -> None:
+        layout = self._layout
+        unknown = sorted(set(layout.counts) - set(layout.channels))
+        if unknown:
+            raise _Damaged(f"messages on channel {unknown[0]}, which is not defined")
+        self.typestore: Typestore = get_typestore(Stores.EMPTY)
+        self._skip: dict[int, str] = {}
+        self._ros1: dict[int, bool] = {}
+        self.connections: list[Connection] = []
+        self._by_id: dict[int, Connection] = {}
+        typs: dict[str, object] = {}
+        for cid, ch in sorted(layout.channels.items()):
+            msgtype, reason, text = self._channel_type(ch, typs)
+            if reason:
+                self._skip[cid] = reason
+            meta = ch.metadata
+            conn = Connection(
+                cid,
+                ch.topic,
+                msgtype,
+                MessageDefinition(MessageDefinitionFormat.MSG, text),
+                meta.get("md5sum", ""),
+                layout.counts.get(cid, 0),
+                ConnectionExtRosbag1(meta.get("callerid"), int(meta.get("latching") or 0)),
+                self,
+            )
+            self.connections.append(conn)
+            self._by_id[cid] = conn
+        try:
+            self.typestore.register(typs)  # type: ignore[arg-type]
+        except Exception as exc:  # two channels defining one type differently
+            raise InputError(
+                self._named, f"its schemas cannot be used together ({_one_line(str(exc))})"
+            ) from exc
+        for conn in self.connections:
+            if conn.id not in self._skip and (why := _undecodable(self.typestore, conn.msgtype)):
+                self._skip[conn.id] = why.replace("in the bag nor in ROS 2 Humble", "in the file")
+        if self.connections and len(self._skip) == len(self.connections):
+            found = "; ".join(f"{c.topic}: {self._skip[c.id]}" for c in self.connections[:4]) + (
+                "; ..." if len(self.connections) > 4 else ""
+            )
+            raise InputError(self._named, f"no channel of this MCAP file can be read: {found}")
+
+    def _channel_type(self, ch: Channel, typs: dict[str, object]) -> tuple[str, str, str]:
+        """``(msgtype, why it cannot be decoded or "", schema text)``, types into ``typs``."""
+        if ch.schema_id == 0:
+            return "", f"no schema for {ch.message_encoding!r} messages", ""
+        schema = self._layout.schemas.get(ch.schema_id)
+        if schema is None:
+            raise _Damaged(f"channel {ch.topic} names schema {ch.schema_id}, which is missing")
+        pair = (ch.message_encoding, schema.encoding)
+        decoder = DECODERS.get(pair)
+        if decoder is None:
+            return (
+                schema.name,
+                (
+                    f"{schema.name} in {ch.message_encoding!r} messages with a "
+                    f"{schema.encoding!r} schema: not read (supported: {supported()})"
+                ),
+                "",
+            )
+        msgtype = normalize_msgtype(schema.name) if "/" in schema.name else schema.name
+        try:
+            text = schema.data.decode()
+            typs.update(decoder.types(text, msgtype))
+        except Exception as exc:  # rosbags' parsers: the definition text is not valid
+            return (
+                msgtype,
+                (
+                    f"the {schema.encoding} definition of {msgtype} cannot be used "
+                    f"({_one_line(str(exc))})"
+                ),
+                "",
+            )
+        self._ros1[ch.id] = decoder.ros1
+        return msgtype, "", text
+
+    @property
+    def topics(self) -> dict[str, TopicInfo]:
+        grouped: dict[str, list[Connection]] = defaultdict(list)
+        for conn in self.connections:
+            grouped[conn.topic].append(conn)
+        out = {}
+        for name in sorted(grouped):
+            conns = grouped[name]
+            types = {c.msgtype for c in conns}
+            defs = {c.msgdef for c in conns}
+            out[name] = TopicInfo(
+                types.pop() if len(types) == 1 else None,
+                defs.pop()
+                if len(defs) == 1
+                else MessageDefinition(MessageDefinitionFormat.NONE, ""),
+                sum(c.msgcount for c in conns),
+                conns,
+            )
+        return out
+
+    def undecodable(self, conn: Connection) -> str | None:
+        """Why this channel's messages cannot be decoded, or None."""
+        return self._skip.get(conn.id)
+
+    def encodings(self, conn: Connection) -> tuple[str, str, str]:
+        """``(message encoding, schema name, schema encoding)`` of a connection."""
+        ch = self._layout.channels[conn.id]
+        schema = self._layout.schemas.get(ch.schema_id)
+        return ch.message_encoding, schema.name if schema else "", schema.encoding if schema else ""
+
+    def decoder_label(self, conn: Connection) -> str:
+        encoding, _, schema = self.encodings(conn)
+        decoder = DECODERS.get((encoding, schema))
+        return decoder.label if decoder else ""
+
+    def decode(self, conn: Connection, raw: bytes | memoryview) -> object:
+        if self._ros1[conn.id]:
+            return self.typestore.deserialize_ros1(raw, conn.msgtype)
+        return self.typestore.deserialize_cdr(raw, conn.msgtype)
+
+    # messages --------------------------------------------------------------------------------
+
+    def messages(
+        self,
+        connections: Collection[Connection] = (),
+        start: int | None = None,
+        stop: int | None = None,
+    ) -> Iterator[tuple[Connection, int, memoryview]]:
+        """``(connection, log time ns, raw bytes)`` in log-time order (ties in file order), for
+        ``start <= t < stop``; every connection when none are given."""
+        try:
+            yield from self._merged(connections, start, stop)
+        except _Damaged as exc:
+            raise InputError(self._named, f"{_DAMAGED}: {exc}") from None
+
+    def _merged(
+        self, connections: Collection[Connection], start: int | None, stop: int | None
+    ) -> Iterator[tuple[Connection, int, memoryview]]:
+        # Ties in time go in the order the connections were asked for, then in file order: as
+        # rosbags' ROS1 reader merges its per-connection indexes, so both give the same stream.
+        order = [c.id for c in connections] if connections else sorted(self._by_id)
+        rank = {cid: r for r, cid in reversed(list(enumerate(order)))}
+        lo = -1 if start is None else start
+        hi = 1 << 64 if stop is None else stop
+        # (time, rank or -1 for a block, offset, index in block or block number)
+        heap: list[tuple[int, int, int, int]] = []
+        blocks = self._layout.blocks
+        for n, b in enumerate(blocks):
+            if (
+                b.end_ns >= lo
+                and b.start_ns < hi
+                and (b.channels is None or b.channels & rank.keys())
+            ):
+                heap.append((b.start_ns, -1, b.offset, n))
+        heapq.heapify(heap)
+        pending: dict[tuple[int, int], tuple[int, memoryview]] = {}
+        by_id = self._by_id
+        while heap:
+            t_ns, r, offset, n = heapq.heappop(heap)
+            if r < 0:
+                for k, (cid, t, raw) in enumerate(self._block(blocks[n])):
+                    if cid in rank and lo <= t < hi:
+                        pending[offset, k] = (cid, raw)
+                        heapq.heappush(heap, (t, rank[cid], offset, k))
+                continue
+            cid, raw = pending.pop((offset, n))
+            yield by_id[cid], t_ns, raw
+
+    def _block(self, block: _Block) -> Iterator[tuple[int, int, memoryview]]:
+        """``(channel id, log time, payload)`` of each message of a block, in file order."""
+        f = self._f
+        if block.chunk:
+            f.seek(block.offset)
+            opcode, length = _OPLEN.unpack(f.read(9))
+            if opcode != Opcode.CHUNK or block.offset + 9 + length != block.end:
+                raise _Damaged("a chunk index points at something else than its chunk")
+            data = _chunk_bytes(_read_chunk(f.read(length)))
+        else:
+            f.seek(block.offset)
+            data = memoryview(f.read(block.end - block.offset))
+            if len(data) != block.end - block.offset:
+                raise _Damaged("the file changed while it was read")
+        # Views, not copies: rosbags' deserialisers take them (a message's arrays then view
+        # its chunk's bytes, as they view a .bag's message bytes).
+        for op, body, end, t_ns in _split(data):
+            if t_ns >= 0:
+                yield op >> 8, t_ns, data[body:end]
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def mcap_profile(path: Path) -> str | None:
+    """The profile in an MCAP file's header (``ros1``, ``ros2``, ``""``), or None when the file
+    is not MCAP or its header cannot be read (the reader chosen then says what is wrong)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(8 + 9 + 4)
+            if len(head) < 21 or not head.startswith(MAGIC) or head[8] != Opcode.HEADER:
+                return None
+            (n,) = struct.unpack_from("<I", head, 17)
+            if n > 1 << 16:
+                return None
+            profile = f.read(n)
+            return profile.decode() if len(profile) == n else None
+    except (OSError, UnicodeDecodeError):
+        return None

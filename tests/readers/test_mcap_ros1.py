@@ -1,0 +1,194 @@
+"""ROS1 in MCAP (issue 16): fixture ROS1 bags rewritten as profile-``ros1`` MCAP files read
+exactly as the bags are, in every layout (chunk compression zstd, lz4, none; indexed or
+summary-less; chunked or not), and damaged ones refused with one line naming the file.
+
+The rewriting is :func:`tests.bagmaker.ros1_bag_to_mcap` (the ``mcap`` package's writer), what
+``mcap convert`` makes of a ROS1 bag. The command-level twins are in
+tests/test_bag2world_mcap.py.
+"""
+
+from __future__ import annotations
+
+import struct
+import warnings
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._mcap import McapFile, mcap_profile
+from scan2terrain.readers.bag import BagWarning, open_bag
+from tests.bagmaker import McapCompression, ros1_bag_to_mcap
+from tests.conftest import FIXTURES
+
+FUSE = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
+EMBARK = FIXTURES / "bags/bag1_embark_luminar_pointcloud/test.bag"
+#: id -> (compression, summary, chunked)
+LAYOUTS: dict[str, tuple[McapCompression, bool, bool]] = {
+    "zstd": ("zstd", True, True),
+    "lz4": ("lz4", True, True),
+    "none": ("none", True, True),
+    "zstd-no-summary": ("zstd", False, True),
+    "lz4-no-summary": ("lz4", False, True),
+    "unchunked": ("none", True, False),
+    "unchunked-no-summary": ("none", False, False),
+}
+
+
+def rewrite(bag: Path, tmp: Path, layout: str) -> Path:
+    compression, summary, chunked = LAYOUTS[layout]
+    return ros1_bag_to_mcap(
+        bag, tmp / f"{layout}.mcap", compression=compression, summary=summary, chunked=chunked
+    )
+
+
+def stream(path: Path, start: int | None = None, end: int | None = None) -> list[Any]:
+    with open_bag(path) as bag:
+        return [(t, n, repr(m)) for t, n, m in bag.messages(list(bag.topics), start, end)]
+
+
+@pytest.mark.parametrize("layout", list(LAYOUTS))
+def test_ros1_mcap_reads_as_the_bag(tmp_path: Path, layout: str) -> None:
+    mcap = rewrite(FUSE, tmp_path, layout)
+    assert mcap_profile(mcap) == "ros1"
+    with open_bag(FUSE) as a, open_bag(mcap) as b:
+        assert b.topics == a.topics and b.skipped == a.skipped == {}
+        assert (b.start_ns, b.end_ns) == (a.start_ns, a.end_ns)
+        assert b.frame_ids("/scan") == a.frame_ids("/scan")
+        # a time slice, as --stream's tasks read them: counts and messages
+        lo, hi = a.start_ns + 10**9, a.start_ns + 5 * 10**9
+        assert b.count(["/scan", "/odom"], lo, hi) == a.count(["/scan", "/odom"], lo, hi)
+        assert b.container.describe() == "MCAP, profile 'ros1', read with mcap"
+        assert b.container.encodings["/scan"] == (
+            "ros1 / ros1msg sensor_msgs/LaserScan, decoded as ROS1 (rosbags)"
+        )
+        assert isinstance(b._reader, McapFile)
+        assert b._reader.indexed == (layout in {"zstd", "lz4", "none"})
+    assert stream(mcap) == stream(FUSE)  # every message, in the same order, equal fields
+    assert stream(mcap, lo, hi) == stream(FUSE, lo, hi)
+
+
+@pytest.mark.parametrize("layout", ["lz4", "zstd-no-summary"])
+def test_ros1_mcap_pointclouds_read_as_the_bag(tmp_path: Path, layout: str) -> None:
+    mcap = rewrite(EMBARK, tmp_path, layout)
+    with open_bag(EMBARK) as a, open_bag(mcap) as b:
+        assert b.topics == a.topics
+        got = [m for _, _, m in b.messages("/luminar_pointcloud")]
+        want = [m for _, _, m in a.messages("/luminar_pointcloud")]
+    assert len(got) == len(want) > 0
+    for x, y in zip(got, want, strict=True):
+        assert bytes(x.data) == bytes(y.data) and repr(x.fields) == repr(y.fields)  # type: ignore[attr-defined]
+
+
+# --- what is refused ----------------------------------------------------------------------------
+
+
+def refused(path: Path) -> str:
+    with pytest.raises(InputError) as info, open_bag(path) as bag:
+        for _ in bag.messages(list(bag.topics)):
+            pass
+    assert info.value.path == path
+    text = str(info.value)
+    assert "\n" not in text
+    return info.value.problem
+
+
+def test_truncated_mcap_is_refused(tmp_path: Path) -> None:
+    data = rewrite(FUSE, tmp_path, "zstd").read_bytes()
+    for cut in (len(data) // 2, len(data) - 3, 30):
+        half = tmp_path / f"cut{cut}.mcap"
+        half.write_bytes(data[:cut])
+        assert "the MCAP file is truncated or damaged" in refused(half)
+
+
+def _first_chunk_data(data: bytes) -> int:
+    """Offset of the first chunk's compressed bytes in a file (after magic and header)."""
+    pos = 8
+    while True:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        if opcode == 0x06:  # chunk: times, size, crc, compression string, data length
+            (n,) = struct.unpack_from("<I", data, pos + 9 + 28)
+            return int(pos + 9 + 32 + n + 8)
+        pos += 9 + length
+
+
+@pytest.mark.parametrize("layout", ["none", "zstd-no-summary", "lz4"])
+def test_corrupt_chunk_is_refused(tmp_path: Path, layout: str) -> None:
+    data = bytearray(rewrite(FUSE, tmp_path, layout).read_bytes())
+    at = _first_chunk_data(bytes(data)) + 200
+    data[at : at + 8] = bytes(b ^ 0x5A for b in data[at : at + 8])
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    problem = refused(bad)
+    assert "the MCAP file is truncated or damaged" in problem
+    if layout == "none":
+        assert "CRC" in problem
+
+
+def test_chunk_claiming_huge_size_is_refused_before_allocating(tmp_path: Path) -> None:
+    data = bytearray(rewrite(FUSE, tmp_path, "zstd").read_bytes())
+    chunk = _first_chunk_data(bytes(data))
+    (n,) = struct.unpack_from("<I", data, chunk - 8 - 4 - 4)  # the compression string's length
+    size_at = chunk - 8 - n - 4 - 4 - 8  # uncompressed size
+    struct.pack_into("<Q", data, size_at, 1 << 50)
+    bad = tmp_path / "bomb.mcap"
+    bad.write_bytes(bytes(data))
+    assert "a chunk claims 1,125,899,906,842,624 bytes" in refused(bad)
+
+
+def _mcap(path: Path, channels: list[tuple[str, str, str, int | None]]) -> Path:
+    """A small MCAP: per channel (topic, message encoding, schema encoding, schema id or None
+    for a schema of its own), one message."""
+    with path.open("wb") as f:
+        w = McapWriter(f, compression=CompressionType.NONE)
+        w.start(profile="", library="test")
+        for n, (topic, encoding, schema_encoding, given) in enumerate(channels):
+            schema_id = given
+            if schema_id is None:
+                schema_id = w.register_schema("pkg/Thing", schema_encoding, b"int32 x\n")
+            cid = w.register_channel(topic, encoding, schema_id)
+            w.add_message(cid, 1000 + n, b"\x01\x00\x00\x00", 1000 + n)
+        w.finish()  # type: ignore[no-untyped-call]
+    return path
+
+
+def test_unknown_schema_encoding_only_is_refused_with_what_is_supported(tmp_path: Path) -> None:
+    bad = _mcap(tmp_path / "fb.mcap", [("/points", "flatbuffer", "flatbuffer", None)])
+    problem = refused(bad)
+    assert problem.startswith("no channel of this MCAP file can be read: /points: ")
+    assert "supported: ros1/ros1msg" in problem
+
+
+def test_unknown_schema_encoding_beside_ros1_is_skipped_with_a_warning(tmp_path: Path) -> None:
+    path = _mcap(
+        tmp_path / "mixed.mcap",
+        [("/thing", "ros1", "ros1msg", None), ("/points", "flatbuffer", "flatbuffer", None)],
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", BagWarning)
+        bag = open_bag(path)
+    with bag:
+        assert "/points" in bag.skipped and "/thing" not in bag.skipped
+        ((_, _, msg),) = list(bag.messages("/thing"))
+        assert msg.x == 1  # type: ignore[attr-defined]
+        assert bag.topics["/thing"].msgtype == "pkg/msg/Thing"
+    assert len(caught) == 1 and "skipping topics: /points" in str(caught[0].message)
+
+
+def test_missing_schema_is_refused(tmp_path: Path) -> None:
+    bad = _mcap(tmp_path / "noschema.mcap", [("/thing", "ros1", "ros1msg", 7)])
+    assert "names schema 7, which is missing" in refused(bad)
+
+
+def test_ros2_profile_keeps_the_rosbags_path() -> None:
+    mcap = FIXTURES / "bags/bag2_derived_embark_luminar_mcap"
+    with open_bag(mcap) as bag:
+        assert not isinstance(bag._reader, McapFile)
+        assert bag.container.describe() == "rosbag2, read with rosbags"
+    single = mcap / "bag2_derived_embark_luminar_mcap.mcap"
+    assert mcap_profile(single) == "ros2"
+    with open_bag(single) as bag:
+        assert bag.container.describe() == "MCAP, profile 'ros2', read with rosbags"
