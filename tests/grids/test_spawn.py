@@ -127,3 +127,24 @@ def test_absurdly_fine_cells_do_not_overflow_the_windows(resolution: float) -> N
     heights = np.zeros((6, 7))
     spawn = find_spawn(heights, resolution, Pose2D(0.0, 0.0, 0.0))
     assert math.isfinite(spawn.x) and math.isfinite(spawn.y) and spawn.z == 0.0
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_square_filter_equals_scipy(seed: int) -> None:
+    """The spawn search's running min/max (no scipy import) equals scipy.ndimage's filters."""
+    from scipy import ndimage
+
+    from scan2terrain.grids.spawn import square_filter
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(int(rng.integers(1, 60)), int(rng.integers(1, 60)))).astype(np.float32)
+    for half in (0, 1, 2, 7, 15, 40):
+        size = 2 * half + 1
+        assert np.array_equal(
+            square_filter(a, half, np.maximum), ndimage.maximum_filter(a, size, mode="nearest")
+        )
+        assert np.array_equal(
+            square_filter(a, half, np.minimum), ndimage.minimum_filter(a, size, mode="nearest")
+        )
+        u = (rng.random(a.shape) < 0.8).astype(np.uint8)
+        assert np.array_equal(square_filter(u, half, np.minimum), ndimage.minimum_filter(u, size))

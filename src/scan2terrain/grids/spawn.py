@@ -14,10 +14,10 @@ preferred point, the whole grid only when nothing there will do.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from scan2terrain.types import Pose2D, Spawn
 
@@ -127,8 +127,8 @@ def _search(
     h = whole[part]
     ground, free = whole_ground[part], whole_free[part]
     size = 2 * half + 1
-    top = ndimage.maximum_filter(h, size=size, mode="nearest")
-    relief = top - ndimage.minimum_filter(h, size=size, mode="nearest")
+    top = square_filter(h, half, np.maximum)
+    relief = top - square_filter(h, half, np.minimum)
     # Room: the footprint lies on the grid (cells nearer the border than ``half`` do not).
     inside = np.zeros(h.shape, dtype=bool)
     if h.shape[0] > 2 * half and h.shape[1] > 2 * half:
@@ -139,7 +139,7 @@ def _search(
     dist2 = (rr + r0 - row) ** 2 + (cc + c0 - col) ** 2
 
     def room(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        under: NDArray[np.bool_] = ndimage.minimum_filter(cells.view(np.uint8), size=size) > 0
+        under: NDArray[np.bool_] = square_filter(cells.view(np.uint8), half, np.minimum) > 0
         return under
 
     on_ground = room(ground)
@@ -196,3 +196,36 @@ def ground_under(
     j_lo, j_hi = math.ceil(col - half) - c_lo, math.floor(col + half) - c_lo
     inside = z[max(i_lo, 0) : max(i_hi + 1, 0), max(j_lo, 0) : max(j_hi + 1, 0)]
     return float(max(lerp.max(), inside.max(initial=-math.inf)))
+
+
+def square_filter(a: NDArray[Any], half: int, op: np.ufunc) -> NDArray[Any]:
+    """``op`` (np.maximum or np.minimum) over the (2 half + 1)^2 window centred on each cell,
+    cells beyond the grid left out: scipy.ndimage's maximum/minimum_filter with mode
+    'nearest', in O(1) a cell (van Herk / Gil-Werman, per axis), without importing scipy
+    (0.3 s, most of a small map2world's run)."""
+    out = a
+    for axis in (0, 1):
+        out = _running(out, half, axis, op)
+    return out
+
+
+def _running(a: NDArray[Any], half: int, axis: int, op: np.ufunc) -> NDArray[Any]:
+    size = 2 * half + 1
+    n = a.shape[axis]
+    if half == 0 or n == 0:
+        return a
+    moved = np.moveaxis(a, axis, 0)
+    # Edge values beyond both ends (they are in every window reaching there anyway), then
+    # enough more to fill whole blocks of ``size``.
+    blocks = -(-(n + 2 * half) // size)
+    extra = blocks * size - (n + 2 * half)
+    padded = np.concatenate(
+        [np.repeat(moved[:1], half, 0), moved, np.repeat(moved[-1:], half + extra, 0)]
+    )
+    shaped = padded.reshape(blocks, size, *moved.shape[1:])
+    forward = op.accumulate(shaped, axis=1).reshape(padded.shape)
+    backward = op.accumulate(shaped[:, ::-1], axis=1)[:, ::-1].reshape(padded.shape)
+    # The window starting at j spans j .. j + size - 1: the rest of j's block, then the start
+    # of the next block up to j + size - 1.
+    out = op(backward[:n], forward[size - 1 : size - 1 + n])
+    return np.moveaxis(out, 0, axis)
