@@ -150,6 +150,7 @@ def _refused(capsys: pytest.CaptureFixture[str], args: list[str], out: Path, mat
         (["--grid", "height"], "octree.grid"),
         (["--unknown", "obstacle"], "terrain.unknown"),
         (["--min-voxels", "10000000"], "world.min_voxels"),
+        (["--chunk", "0.08"], "more than 4096"),
     ],
 )
 def test_refusals(

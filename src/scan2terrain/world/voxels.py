@@ -52,6 +52,8 @@ OBSTACLE_TOP = 2.0
 #: The ground is the bottom of the voxel layer below which lie fewer than this share of the
 #: voxels: a few stray voxels under the floor (geb079.bt has one, 16 cm below) do not lower it.
 GROUND_QUANTILE = 0.001
+#: Most chunks (a model holds a collision and a visual per chunk, three files each).
+MAX_CHUNKS = 4096
 #: Most colours in the visual meshes (a submesh and a material each: draw calls).
 MAX_COLOURS = 64
 #: Most occupied voxels meshed: meshing holds about 2 KB a voxel at its peak today (10 M voxels
@@ -116,6 +118,14 @@ def voxel_mesh_world(
                 f" {w.min_voxels}: nothing is left"
             )  # fmt: skip
     cells = max(1, round(w.chunk / resolution))
+    n_chunks = len(np.unique(np.floor_divide(lattice, cells), axis=0))
+    if n_chunks > MAX_CHUNKS:
+        raise InputError(
+            source,
+            f"--chunk {w.chunk:g} m cuts the voxels into {n_chunks} chunks, more than"
+            f" {MAX_CHUNKS} (three mesh files and two SDF elements each): choose a larger"
+            " --chunk",
+        )
     palette = labels = None
     if rgb is not None:
         palette, labels = meshfile.quantise_colours(rgb, MAX_COLOURS)
