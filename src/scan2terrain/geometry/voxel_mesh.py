@@ -431,15 +431,13 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     hi = 2 * np.maximum(ef[k, ea], et[k, ea])
     # Points on lines (doubled coordinates): every corner (per chunk) on its three lines; the
     # diagonals' midpoints on their line and quadrant (only faces of that voxel take them).
-    uniq, _, _ = _unique_rows(np.column_stack([rep(r.chunk, 4), ef]))
     w = 2 * int(grid.dims.max()) + 4
-    c_line = [
-        _line_key(uniq[:, 0], t, 2 * uniq[:, 1 + _OTHER[t, 0]], 2 * uniq[:, 1 + _OTHER[t, 1]], w)
-        for t in range(3)
-    ]
-    c_key = np.concatenate(c_line)
-    c_along = np.concatenate([2 * uniq[:, 1 + t] for t in range(3)])
     e_key = _line_key(e_chunk, ea, 2 * ef[k, oa], 2 * ef[k, ob], w)
+    # A corner matters only on the lines its rectangle has an edge along: the faces that share
+    # a stretch of a line are the ones with an edge along it.
+    ends = np.concatenate([e_key * w + 2 * ef[k, ea], e_key * w + 2 * et[k, ea]])
+    ends = np.unique(ends)
+    c_key, c_along = ends // w, ends % w
     m_key = _line_key(diag.line[:, 0], diag.line[:, 1], diag.line[:, 2], diag.line[:, 3], w)
     m_key = m_key * 4 + diag.line[:, 4]
     c_first, c_count, c_order = _between(c_key, c_along, e_key, lo, hi, w)
