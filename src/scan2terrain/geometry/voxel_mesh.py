@@ -32,6 +32,8 @@ occupied), and its volume is the voxel count times a voxel's volume, up to the h
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -129,14 +131,20 @@ def mesh_voxels(
     hair = min(SPLIT, SPLIT_MAX / resolution)
     out: list[VoxelChunk] = []
     total = 0
-    for c in range(len(chunk_keys)):
+
+    def one(c: int) -> VoxelChunk:
         members = by_chunk[bounds[c] : bounds[c + 1]]
         index = (int(chunk_keys[c, 0]), int(chunk_keys[c, 1]), int(chunk_keys[c, 2]))
-        chunk = _mesh_chunk(k[members], lab[members], index, resolution, origin, hair)
-        total += len(chunk.mesh.faces)
-        if max_triangles is not None and total > max_triangles:
-            raise TooManyTriangles(total, max_triangles)
-        out.append(chunk)
+        return _mesh_chunk(k[members], lab[members], index, resolution, origin, hair)
+
+    # Chunks on every core (numpy releases the GIL in its sorts and loops); results in chunk
+    # order, so the meshes do not depend on the number of threads.
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        for chunk in pool.map(one, range(len(chunk_keys))):
+            total += len(chunk.mesh.faces)
+            if max_triangles is not None and total > max_triangles:
+                raise TooManyTriangles(total, max_triangles)
+            out.append(chunk)
     return out
 
 
