@@ -16,6 +16,8 @@ or 0.1 m resolution, and the true grid is exact at those resolutions.
 
 from __future__ import annotations
 
+import base64
+import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -763,3 +765,238 @@ def ros1_bag_to_mcap(
             writer.add_message(channels[conn.id], int(t_ns), bytes(raw), int(t_ns), seq)
         writer.finish()  # type: ignore[no-untyped-call]
     return out
+
+
+# --- Foxglove schemas in MCAP (issue 16) ------------------------------------------------------
+
+FoxgloveEncoding = Literal["protobuf", "json"]
+#: sensor_msgs/PointField datatype -> foxglove.PackedElementField.NumericType
+_FOXGLOVE_NUMERIC = {1: 2, 2: 1, 3: 4, 4: 3, 5: 6, 6: 5, 7: 7, 8: 8}
+
+
+def _fg_time(ns: int) -> dict[str, int]:
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def _fg_stamp(msg: Any) -> dict[str, int]:
+    return {"sec": int(msg.header.stamp.sec), "nsec": int(msg.header.stamp.nanosec)}
+
+
+def _fg_xyz(v: Any) -> dict[str, float]:
+    return {"x": float(v.x), "y": float(v.y), "z": float(v.z)}
+
+
+def _fg_quat(q: Any) -> dict[str, float]:
+    return {"x": float(q.x), "y": float(q.y), "z": float(q.z), "w": float(q.w)}
+
+
+def _fg_pose(p: Any) -> dict[str, Any]:
+    return {"position": _fg_xyz(p.position), "orientation": _fg_quat(p.orientation)}
+
+
+def ros_to_foxglove(msgtype: str, msg: Any, *, split_tf: bool = False) -> list[tuple[str, Any]]:
+    """A deserialised ROS message as Foxglove messages ``(schema name, dict in Foxglove's JSON
+    form, bytes as bytes)``: LaserScan (readings below ``range_min`` as NaN; Foxglove has no
+    ``range_max``, so readings at or beyond it would become hits: the callers' scans have none),
+    PointCloud2 (fields of count 1; rows repacked),
+    TFMessage (one FrameTransforms, or one FrameTransform each with ``split_tf``), Odometry
+    (PoseInFrame: the child frame is lost), OccupancyGrid (Grid, one INT8 field
+    ``occupancy``); [] for other types."""
+    if msgtype == "sensor_msgs/msg/LaserScan":
+        n = len(msg.ranges)
+        start = float(msg.angle_min)
+        return [
+            (
+                "foxglove.LaserScan",
+                {
+                    "timestamp": _fg_stamp(msg),
+                    "frame_id": msg.header.frame_id,
+                    "start_angle": start,
+                    "end_angle": start + (n - 1) * float(msg.angle_increment),
+                    # Foxglove has no range_min: what ROS drops as too close is NaN here.
+                    "ranges": [float(r) if r >= msg.range_min else math.nan for r in msg.ranges],
+                    "intensities": [float(r) for r in msg.intensities],
+                },
+            )
+        ]
+    if msgtype == "sensor_msgs/msg/PointCloud2":
+        assert not msg.is_bigendian
+        step, width, height = int(msg.point_step), int(msg.width), int(msg.height)
+        rows = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+        rows = rows[: height * int(msg.row_step)].reshape(height, int(msg.row_step))
+        data = np.ascontiguousarray(rows[:, : width * step]).tobytes()
+        fields = [
+            {"name": f.name, "offset": int(f.offset), "type": _FOXGLOVE_NUMERIC[int(f.datatype)]}
+            for f in msg.fields
+            if int(f.count) == 1
+        ]
+        return [
+            (
+                "foxglove.PointCloud",
+                {
+                    "timestamp": _fg_stamp(msg),
+                    "frame_id": msg.header.frame_id,
+                    "point_stride": step,
+                    "fields": fields,
+                    "data": data,
+                },
+            )
+        ]
+    if msgtype in ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage"):
+        transforms = [
+            {
+                "timestamp": _fg_stamp(t),
+                "parent_frame_id": t.header.frame_id,
+                "child_frame_id": t.child_frame_id,
+                "translation": _fg_xyz(t.transform.translation),
+                "rotation": _fg_quat(t.transform.rotation),
+            }
+            for t in msg.transforms
+        ]
+        if split_tf:
+            return [("foxglove.FrameTransform", t) for t in transforms]
+        return [("foxglove.FrameTransforms", {"transforms": transforms})]
+    if msgtype == "nav_msgs/msg/Odometry":
+        return [
+            (
+                "foxglove.PoseInFrame",
+                {
+                    "timestamp": _fg_stamp(msg),
+                    "frame_id": msg.header.frame_id,
+                    "pose": _fg_pose(msg.pose.pose),
+                },
+            )
+        ]
+    if msgtype == "nav_msgs/msg/OccupancyGrid":
+        info = msg.info
+        res = float(info.resolution)
+        return [
+            (
+                "foxglove.Grid",
+                {
+                    "timestamp": _fg_stamp(msg),
+                    "frame_id": msg.header.frame_id,
+                    "pose": _fg_pose(info.origin),
+                    "column_count": int(info.width),
+                    "cell_size": {"x": res, "y": res},
+                    "row_stride": int(info.width),
+                    "cell_stride": 1,
+                    "fields": [{"name": "occupancy", "offset": 0, "type": 2}],
+                    "data": np.asarray(msg.data, dtype=np.int8).tobytes(),
+                },
+            )
+        ]
+    return []
+
+
+def _to_protobuf(pb: Any, value: dict[str, Any]) -> Any:
+    """Fill a protobuf message from a dict in Foxglove's JSON form (times ``sec``/``nsec``)."""
+    pb.SetInParent()
+    for key, v in value.items():
+        fd = pb.DESCRIPTOR.fields_by_name[key]
+        repeated = getattr(fd, "is_repeated", None)
+        repeated = fd.label == fd.LABEL_REPEATED if repeated is None else repeated
+        if fd.message_type is None:
+            if repeated:
+                getattr(pb, key).extend(v)
+            else:
+                setattr(pb, key, v)
+        elif fd.message_type.full_name == "google.protobuf.Timestamp":
+            getattr(pb, key).seconds, getattr(pb, key).nanos = v["sec"], v["nsec"]
+        elif repeated:
+            for item in v:
+                _to_protobuf(getattr(pb, key).add(), item)
+        else:
+            _to_protobuf(getattr(pb, key), v)
+    return pb
+
+
+def foxglove_message_bytes(name: str, value: dict[str, Any], encoding: FoxgloveEncoding) -> bytes:
+    """One Foxglove message (dict in Foxglove's JSON form) serialised as protobuf or JSON."""
+    if encoding == "json":
+        return json.dumps(
+            value, default=lambda b: base64.b64encode(bytes(b)).decode(), allow_nan=True
+        ).encode()
+    import importlib
+
+    module = importlib.import_module(f"foxglove_schemas_protobuf.{name.split('.')[1]}_pb2")
+    cls = getattr(module, name.split(".")[1])
+    return bytes(_to_protobuf(cls(), value).SerializeToString())
+
+
+def foxglove_schema(name: str, encoding: FoxgloveEncoding) -> tuple[str, bytes]:
+    """``(schema encoding, schema bytes)`` of a Foxglove schema: the FileDescriptorSet of the
+    generated class (as mcap-protobuf-support writes it), or a JSON schema (not validated by the
+    reader: only its name matters)."""
+    if encoding == "json":
+        return "jsonschema", json.dumps({"title": name, "type": "object"}).encode()
+    import importlib
+
+    from mcap_protobuf.schema import build_file_descriptor_set
+
+    module = importlib.import_module(f"foxglove_schemas_protobuf.{name.split('.')[1]}_pb2")
+    fds = build_file_descriptor_set(getattr(module, name.split(".")[1]))
+    return "protobuf", bytes(fds.SerializeToString())
+
+
+def write_foxglove_mcap(
+    out: Path,
+    messages: Iterable[tuple[str, str, int, Any]],
+    encoding: FoxgloveEncoding,
+    *,
+    compression: McapCompression = "zstd",
+    summary: bool = True,
+) -> Path:
+    """Write ``(topic, schema name, log time ns, dict in Foxglove's JSON form)`` messages as an
+    MCAP file of Foxglove schemas (profile ``""``), one channel per topic."""
+    from mcap.writer import CompressionType, IndexType
+    from mcap.writer import Writer as McapWriter
+
+    kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+    options: dict[str, Any] = {}
+    if not summary:
+        options = {
+            "index_types": IndexType.NONE,
+            "repeat_channels": False,
+            "repeat_schemas": False,
+            "use_statistics": False,
+            "use_summary_offsets": False,
+        }
+    with out.open("wb") as f:
+        writer = McapWriter(f, compression=kinds[compression], **options)
+        writer.start(profile="", library="scan2terrain tests")
+        schemas: dict[str, int] = {}
+        channels: dict[str, int] = {}
+        for seq, (topic, name, t_ns, value) in enumerate(messages):
+            if name not in schemas:
+                schema_encoding, data = foxglove_schema(name, encoding)
+                schemas[name] = writer.register_schema(name, schema_encoding, data)
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, encoding, schemas[name])
+            raw = foxglove_message_bytes(name, value, encoding)
+            writer.add_message(channels[topic], int(t_ns), raw, int(t_ns), seq)
+        writer.finish()  # type: ignore[no-untyped-call]
+    return out
+
+
+def ros_bag_to_foxglove_mcap(
+    bag: Path,
+    out: Path,
+    encoding: FoxgloveEncoding,
+    *,
+    compression: McapCompression = "zstd",
+    summary: bool = True,
+    split_tf: bool = False,
+) -> Path:
+    """Re-encode a ROS bag's scans, tf, odometry and maps as Foxglove schemas in MCAP (see
+    :func:`ros_to_foxglove`; other topics are left out), in the bag's order and log times."""
+    from rosbags.highlevel import AnyReader
+
+    converted: list[tuple[str, str, int, Any]] = []
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for conn, t_ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            for name, value in ros_to_foxglove(conn.msgtype, msg, split_tf=split_tf):
+                converted.append((conn.topic, name, int(t_ns), value))
+    return write_foxglove_mcap(out, converted, encoding, compression=compression, summary=summary)

@@ -1,4 +1,5 @@
-"""MCAP files that are not rosbag2's: ROS1 in MCAP (and CDR without the ``ros2`` profile).
+"""MCAP files that are not rosbag2's: ROS1 in MCAP, Foxglove's schemas in protobuf or JSON (and
+CDR without the ``ros2`` profile).
 
 For :func:`scan2terrain.readers.bag.open_bag`, which sends here every MCAP file whose header
 profile is not ``ros2`` (rosbags' own reader refuses those: "Profile is not ros2"). A
@@ -24,7 +25,12 @@ every decoder downstream sees exactly the objects the ROS1 ``.bag`` path gives. 
   ``ros2msg`` or ``ros2idl`` with its CDR one, the schema text registered in a typestore of the
   file's own, as rosbags does for a ROS1 bag (``roslib/Header`` renamed as in
   :mod:`scan2terrain.readers._bag_errors`). Type names are ROS 2 style, as rosbags reports them
-  (``sensor_msgs/LaserScan`` -> ``sensor_msgs/msg/LaserScan``). A channel without a schema, or
+  (``sensor_msgs/LaserScan`` -> ``sensor_msgs/msg/LaserScan``). ``protobuf``/``protobuf`` and
+  ``json``/``jsonschema`` channels get a decoding function each from
+  :mod:`scan2terrain.readers.foxglove` (protobuf classes built from the schema's
+  ``FileDescriptorSet``; Foxglove's scan, tf, pose and grid schemas turned into objects shaped
+  like the ROS messages); their type is the schema's name (``foxglove.PointCloud``). A channel
+  without a schema, or
   with encodings not in the table, is *skipped* (listed with the reason, as a bag's unknown
   types are), not fatal: the file may hold usable scans beside it.
 * **Hostile input.** Every length is checked against the file, or its chunk, before anything is
@@ -63,6 +69,7 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.msg import normalize_msgtype
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers import foxglove
 from scan2terrain.readers._bag_errors import _one_line, _undecodable
 from scan2terrain.readers._bag_source import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET
 
@@ -112,13 +119,16 @@ def _parse(parse: Callable[[ReadDataStream], object], body: bytes, what: str) ->
 class _Decoder:
     """How one (message encoding, schema encoding) pair is read.
 
-    ``types``: the schema as rosbags types (name -> parse tree), raising on a bad definition;
-    ``ros1``: whether messages are ROS1 bytes (else CDR).
+    Either rosbags types: ``types``, the schema as rosbags types (name -> parse tree), raising on
+    a bad definition, and ``ros1``, whether messages are ROS1 bytes (else CDR); or ``make``, a
+    per-channel decoding function from the schema's name and bytes, raising ValueError on a
+    schema it cannot use (protobuf and JSON, :mod:`scan2terrain.readers.foxglove`).
     """
 
     label: str
-    types: Callable[[str, str], dict[str, object]]
-    ros1: bool
+    types: Callable[[str, str], dict[str, object]] | None = None
+    ros1: bool = False
+    make: Callable[[str, bytes], Callable[[bytes | memoryview], object]] | None = None
 
 
 def _ros1_types(text: str, name: str) -> dict[str, object]:
@@ -141,9 +151,13 @@ def _idl_types(text: str, name: str) -> dict[str, object]:
 DECODERS: dict[tuple[str, str], _Decoder] = {
     ("ros1", "ros1msg"): _Decoder("ROS1 (rosbags)", _ros1_types, ros1=True),
     ("cdr", "ros2msg"): _Decoder(
-        "CDR (rosbags)", lambda t, n: dict(get_types_from_msg(t, n)), False
+        "CDR (rosbags)", lambda t, n: dict(get_types_from_msg(t, n)), ros1=False
     ),
     ("cdr", "ros2idl"): _Decoder("CDR (rosbags)", _idl_types, ros1=False),
+    ("protobuf", "protobuf"): _Decoder(
+        "protobuf (the file's descriptors)", make=foxglove.protobuf_decoder
+    ),
+    ("json", "jsonschema"): _Decoder("JSON", make=foxglove.json_decoder),
 }
 
 
@@ -482,6 +496,7 @@ class McapFile:
         self.typestore: Typestore = get_typestore(Stores.EMPTY)
         self._skip: dict[int, str] = {}
         self._ros1: dict[int, bool] = {}
+        self._decode: dict[int, Callable[[bytes | memoryview], object]] = {}
         self.connections: list[Connection] = []
         self._by_id: dict[int, Connection] = {}
         typs: dict[str, object] = {}
@@ -509,6 +524,8 @@ class McapFile:
                 self._named, f"its schemas cannot be used together ({_one_line(str(exc))})"
             ) from exc
         for conn in self.connections:
+            if conn.id in self._decode:
+                continue
             if conn.id not in self._skip and (why := _undecodable(self.typestore, conn.msgtype)):
                 self._skip[conn.id] = why.replace("in the bag nor in ROS 2 Humble", "in the file")
         if self.connections and len(self._skip) == len(self.connections):
@@ -535,6 +552,18 @@ class McapFile:
                 ),
                 "",
             )
+        if decoder.make is not None:
+            try:
+                self._decode[ch.id] = decoder.make(schema.name, bytes(schema.data))
+            except ValueError as exc:
+                return (
+                    schema.name,
+                    f"the {schema.encoding} schema of {schema.name} cannot be used "
+                    f"({_one_line(str(exc))})",
+                    "",
+                )
+            return schema.name, "", ""
+        assert decoder.types is not None
         msgtype = normalize_msgtype(schema.name) if "/" in schema.name else schema.name
         try:
             text = schema.data.decode()
@@ -584,9 +613,14 @@ class McapFile:
     def decoder_label(self, conn: Connection) -> str:
         encoding, _, schema = self.encodings(conn)
         decoder = DECODERS.get((encoding, schema))
-        return decoder.label if decoder else ""
+        if decoder is None:
+            return ""
+        use = foxglove.USES.get(conn.msgtype)
+        return f"{decoder.label}, {use}" if use and conn.id in self._decode else decoder.label
 
     def decode(self, conn: Connection, raw: bytes | memoryview) -> object:
+        if (decode := self._decode.get(conn.id)) is not None:
+            return decode(raw)
         if self._ros1[conn.id]:
             return self.typestore.deserialize_ros1(raw, conn.msgtype)
         return self.typestore.deserialize_cdr(raw, conn.msgtype)

@@ -47,6 +47,7 @@ from rosbags.interfaces import TopicInfo as _RosbagsTopic
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers import foxglove
 from scan2terrain.readers._bag_errors import (
     _culprit,
     _explain,
@@ -65,8 +66,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LASER_SCAN",
+    "MAP_TYPES",
     "OCCUPANCY_GRID",
     "ODOMETRY",
+    "ODOMETRY_TYPES",
     "POINT_CLOUD2",
     "SCAN_TYPES",
     "TF_MESSAGE",
@@ -88,8 +91,13 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 #: ROS1's pre-tf2 ``tf/tfMessage``: the same layout (``geometry_msgs/TransformStamped[]``).
 TF_MESSAGE_ROS1_OLD = "tf/msg/tfMessage"
-TF_TYPES = frozenset({TF_MESSAGE, TF_MESSAGE_ROS1_OLD})
-SCAN_TYPES = frozenset({LASER_SCAN, POINT_CLOUD2})
+TF_TYPES = frozenset({TF_MESSAGE, TF_MESSAGE_ROS1_OLD, *foxglove.TF_TYPES})
+#: Scans: ROS's, and Foxglove's ``foxglove.LaserScan`` / ``foxglove.PointCloud`` in MCAP.
+SCAN_TYPES = frozenset({LASER_SCAN, POINT_CLOUD2, *foxglove.SCAN_TYPES})
+#: Occupancy grids: ``nav_msgs/OccupancyGrid``, and ``foxglove.Grid`` in MCAP.
+MAP_TYPES = frozenset({OCCUPANCY_GRID, foxglove.GRID})
+#: Poses of the robot base over time: odometry, and ``foxglove.PoseInFrame`` in MCAP.
+ODOMETRY_TYPES = frozenset({ODOMETRY, foxglove.POSE_IN_FRAME})
 
 #: Values at or above this many seconds are absolute UNIX times in :func:`resolve_time`.
 ABSOLUTE_TIME_S = 1e9

@@ -42,14 +42,15 @@ from numpy.typing import NDArray
 from scan2terrain.config import ScansConfig
 from scan2terrain.errors import InputError
 from scan2terrain.readers.bag import (
-    LASER_SCAN,
-    OCCUPANCY_GRID,
-    ODOMETRY,
-    POINT_CLOUD2,
+    MAP_TYPES,
+    ODOMETRY_TYPES,
     TF_TYPES,
     Bag,
     resolve_time,
 )
+from scan2terrain.readers.bag import SCAN_TYPES as _SCAN_TYPES
+from scan2terrain.readers.foxglove import LaserScan as FoxgloveLaserScan
+from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
@@ -60,7 +61,7 @@ from scan2terrain.types import Pose2D, Scan, Transform, normalise_frame
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
-SCAN_TYPES = (LASER_SCAN, POINT_CLOUD2)
+SCAN_TYPES = tuple(sorted(_SCAN_TYPES))
 
 
 @dataclass
@@ -109,8 +110,8 @@ def plan_bag(bag: Bag, cfg: ScansConfig) -> BagPlan:
     path = bag.path
     if cfg.topics:
         for t in cfg.topics:
-            bag.require(t, (*SCAN_TYPES, OCCUPANCY_GRID))
-        maps = [t for t in cfg.topics if bag.topics[t].msgtype == OCCUPANCY_GRID]
+            bag.require(t, (*SCAN_TYPES, *MAP_TYPES))
+        maps = [t for t in cfg.topics if bag.topics[t].msgtype in MAP_TYPES]
         if maps and len(cfg.topics) > 1:
             raise InputError(path, "give either scan topics or one OccupancyGrid topic, not both")
         if maps:
@@ -120,7 +121,7 @@ def plan_bag(bag: Bag, cfg: ScansConfig) -> BagPlan:
         plan.reasons.append(f"topics {', '.join(cfg.topics)}: chosen (--topic)")
     else:
         scans = scan_topics(bag)
-        maps = sorted(n for n, t in bag.topics.items() if t.msgtype == OCCUPANCY_GRID and t.count)
+        maps = sorted(n for n, t in bag.topics.items() if t.msgtype in MAP_TYPES and t.count)
         if len(scans) == 1:
             plan.scan_topics = scans
             plan.reasons.append(f"topic {scans[0]}: the bag's only LaserScan/PointCloud2 topic")
@@ -163,7 +164,7 @@ def _short(msgtype: str | None) -> str:
 
 def _plan_poses(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
     has_tf = bool(bag.topics_of_type(TF_TYPES))
-    odoms = bag.topics_of_type(ODOMETRY)
+    odoms = bag.topics_of_type(ODOMETRY_TYPES)
     choice = cfg.poses
     if choice == "auto":
         if cfg.pose is not None:
@@ -200,7 +201,7 @@ def _plan_poses(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
             f"in fixed frame '{plan.fixed_frame}'"
         )
     elif choice == "odom":
-        plan.odom_topic = bag.pick_topic(ODOMETRY, cfg.odom_topic).name
+        plan.odom_topic = bag.pick_topic(ODOMETRY_TYPES, cfg.odom_topic).name
         plan.fixed_frame = "odom"
         plan.reasons.append(f"poses: odometry on {plan.odom_topic} plus the sensor mount")
     elif choice == "trajectory":
@@ -369,8 +370,13 @@ def _pose_batch(
                         poser.why_not(topic, int(stamps[j]))
                     )
                 continue
+            r_j, t_j = rot[j], trans[j]
             try:
-                if hasattr(msg, "ranges"):
+                if isinstance(msg, (FoxglovePointCloud, FoxgloveLaserScan)):
+                    pts, mr = msg.points(max_range)
+                    if (local := msg.local_pose) is not None:  # the scan's origin in its frame
+                        r_j, t_j = r_j @ local.rotation, r_j @ local.translation + t_j
+                elif hasattr(msg, "ranges"):
                     pts, mr = laserscan_points(msg, max_range if max_range > 0 else None)
                 else:
                     pts, mr = pointcloud2_xyz(msg), max_range
@@ -384,10 +390,10 @@ def _pose_batch(
             if len(pts) == 0:
                 counts.empty += 1
                 continue
-            world = pts @ np.ascontiguousarray(rot[j].T)  # a transposed view is a slow matmul
-            world += trans[j]
-            heading = math.atan2(float(rot[j][1, 0]), float(rot[j][0, 0]))
-            origin = np.array(trans[j], dtype=np.float64)
+            world = pts @ np.ascontiguousarray(r_j.T)  # a transposed view is a slow matmul
+            world += t_j
+            heading = math.atan2(float(r_j[1, 0]), float(r_j[0, 0]))
+            origin = np.array(t_j, dtype=np.float64)
             out.append(Scan(world, origin, mr, int(stamps[j]), topic, heading))
     out.sort(key=lambda s: s.stamp_ns)
     yield from out

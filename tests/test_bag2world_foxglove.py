@@ -1,0 +1,258 @@
+"""Foxglove's own schemas in MCAP through the command line (issue 16): the same recording as a
+ROS1 bag and re-encoded as Foxglove protobuf and JSON schemas (LaserScan or PointCloud, and
+FrameTransform(s)) gives the same world, byte for byte but for the names taken from the input
+file; a ``foxglove.Grid`` occupancy grid gives the world of the equivalent map_server map;
+``inspect`` and ``convert`` read them; bad Foxglove input is one line, exit 2, nothing written.
+
+The re-encoding is :func:`tests.bagmaker.ros_bag_to_foxglove_mcap` (the ``mcap`` writer, the
+``foxglove-schemas-protobuf`` classes and their descriptors as ``mcap-protobuf-support``
+writes them, or JSON).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from scan2terrain.cli import main
+from scan2terrain.readers.mapserver import read_map_yaml
+from tests.bagmaker import (
+    FoxgloveEncoding,
+    McapCompression,
+    foxglove_message_bytes,
+    ros_bag_to_foxglove_mcap,
+    synthetic_room,
+    write_foxglove_mcap,
+)
+from tests.conftest import MAPS
+from tests.readers.test_mcap_ros1 import EMBARK
+from tests.test_bag2world import STATIONARY, normalised_outputs
+
+
+def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def same_world(  # noqa: PLR0917
+    capsys: pytest.CaptureFixture[str],
+    tmp: Path,
+    want_cmd: list[object],
+    want_source: Path,
+    got_source: Path,
+    options: list[object],
+) -> None:
+    """``want_cmd`` (a command and its input) and ``bag2world got_source`` with ``options``
+    write the same files (names from the input replaced) and print the same report."""
+    code, want_stdout, err = run(capsys, *want_cmd, "-o", tmp / "want", *options)
+    assert code == 0, err
+    want = normalised_outputs(tmp / "want", want_source)
+    assert "map/map.pgm" in want
+    code, got_stdout, err = run(capsys, "bag2world", got_source, "-o", tmp / "got", *options)
+    assert code == 0 and err == "", err
+    got = normalised_outputs(tmp / "got", got_source)
+    assert sorted(got) == sorted(want)
+    assert [k for k in want if got[k] != want[k]] == []
+
+    def report(text: str, out: Path, source: Path) -> str:
+        return text.replace(str(out), "OUT").replace(source.name, "SOURCE")
+
+    if want_cmd[0] == "bag2world":
+        assert report(got_stdout, tmp / "got", got_source) == report(
+            want_stdout, tmp / "want", want_source
+        )
+    shutil.rmtree(tmp / "got")
+    shutil.rmtree(tmp / "want")
+
+
+# id -> (encoding, compression, summary, split_tf)
+ENCODINGS: dict[str, tuple[FoxgloveEncoding, McapCompression, bool, bool]] = {
+    "protobuf": ("protobuf", "zstd", True, False),
+    "json": ("json", "lz4", True, False),
+    "protobuf-no-summary-frame-transform": ("protobuf", "none", False, True),
+}
+
+
+def foxglove(bag: Path, tmp: Path, case: str) -> Path:
+    encoding, compression, summary, split_tf = ENCODINGS[case]
+    folder = tmp / case
+    folder.mkdir()
+    return ros_bag_to_foxglove_mcap(
+        bag,
+        folder / f"{bag.stem}.mcap",
+        encoding,
+        compression=compression,
+        summary=summary,
+        split_tf=split_tf,
+    )
+
+
+@pytest.fixture(scope="module")
+def room_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    room = synthetic_room("tf", n_scans=60)
+    return room.write(tmp_path_factory.mktemp("room") / "room.bag", "ros1")
+
+
+ROOM_OPTIONS = {
+    "octree": ["--resolution", "0.05", "--geometry", "heightmap", "--no-preview"],
+    "stream": ["--resolution", "0.05", "--stream", "--no-preview"],
+}
+
+
+@pytest.mark.parametrize(
+    ("case", "mode"), [*((c, "octree") for c in ENCODINGS), ("protobuf", "stream")]
+)
+def test_foxglove_laserscan_and_transforms_give_the_world_of_the_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], room_bag: Path, case: str, mode: str
+) -> None:
+    mcap = foxglove(room_bag, tmp_path, case)
+    options: list[object] = list(ROOM_OPTIONS[mode])
+    same_world(capsys, tmp_path, ["bag2world", room_bag], room_bag, mcap, options)
+
+
+@pytest.mark.parametrize("case", ["protobuf", "json"])
+def test_foxglove_pointcloud_gives_the_world_of_the_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    # as the ROS1 MCAP twin: 0.5 m voxels, one fixed pose
+    options: list[object] = ["--topic", "/luminar_pointcloud", *STATIONARY]
+    options += ["--resolution", "0.5", "--no-preview"]
+    mcap = foxglove(EMBARK, tmp_path, case)
+    same_world(capsys, tmp_path, ["bag2world", EMBARK], EMBARK, mcap, options)
+
+
+def grid_messages(yaml: Path) -> list[tuple[str, str, int, Any]]:
+    """A map_server map as one foxglove.Grid message (INT8 occupancy, row 0 at the origin)."""
+    _, grid = read_map_yaml(yaml)
+    w = grid.data.shape[1]
+    res = float(grid.resolution)
+    o = grid.origin
+    value = {
+        "timestamp": {"sec": 1_700_000_000, "nsec": 0},
+        "frame_id": "map",
+        "pose": {
+            "position": {"x": o.x, "y": o.y, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": np.sin(o.yaw / 2), "w": np.cos(o.yaw / 2)},
+        },
+        "column_count": w,
+        "cell_size": {"x": res, "y": res},
+        "row_stride": w,
+        "cell_stride": 1,
+        "fields": [{"name": "occupancy", "offset": 0, "type": 2}],
+        "data": np.ascontiguousarray(grid.data, dtype=np.int8).tobytes(),
+    }
+    return [("/map", "foxglove.Grid", 1_700_000_000_000_000_000, value)]
+
+
+@pytest.mark.parametrize("encoding", ["protobuf", "json"])
+def test_foxglove_grid_gives_the_world_of_the_map_server_map(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], encoding: FoxgloveEncoding
+) -> None:
+    yaml = MAPS["tb3"]
+    mcap = write_foxglove_mcap(tmp_path / f"{yaml.stem}.mcap", grid_messages(yaml), encoding)
+    same_world(capsys, tmp_path, ["map2world", yaml], yaml, mcap, ["--no-preview"])
+
+
+def test_inspect_foxglove_mcap(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], room_bag: Path
+) -> None:
+    code, want, err = run(capsys, "inspect", room_bag)
+    assert code == 0, err
+    mcap = foxglove(room_bag, tmp_path, "json")
+    code, got, err = run(capsys, "inspect", mcap)
+    assert code == 0 and err == "", err
+    assert "MCAP, profile '', read with mcap" in got
+    assert "json / jsonschema foxglove.LaserScan, decoded as JSON, read as scans (laser)" in got
+    assert "read as tf" in got
+    # the same tf tree, and the same plan
+    tail = want[want.index("  tf tree:") :]
+    assert got[got.index("  tf tree:") :] == tail
+
+
+def test_convert_foxglove_mcap_gives_the_cloud_of_the_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], room_bag: Path
+) -> None:
+    code, _, err = run(capsys, "convert", room_bag, tmp_path / "bag.ply")
+    assert code == 0, err
+    mcap = foxglove(room_bag, tmp_path, "protobuf")
+    code, _, err = run(capsys, "convert", mcap, tmp_path / "fg.ply")
+    assert code == 0, err
+    assert (tmp_path / "fg.ply").read_bytes() == (tmp_path / "bag.ply").read_bytes()
+
+
+# --- bad input ----------------------------------------------------------------------------------
+
+
+def _raw_mcap(path: Path, schema: tuple[str, str, bytes], encoding: str, payload: bytes) -> Path:
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+
+    with path.open("wb") as f:
+        w = McapWriter(f, compression=CompressionType.NONE)
+        w.start(profile="", library="test")
+        sid = w.register_schema(*schema)
+        cid = w.register_channel("/scan", encoding, sid)
+        w.add_message(cid, 1000, payload, 1000)
+        w.finish()  # type: ignore[no-untyped-call]
+    return path
+
+
+def _bad(tmp: Path) -> dict[str, tuple[Path, str]]:
+    from tests.bagmaker import foxglove_schema
+
+    scan = {"frame_id": "laser", "start_angle": 0.0, "end_angle": 1.0, "ranges": [1.0, 2.0]}
+    pb = foxglove_schema("foxglove.LaserScan", "protobuf")
+    good = foxglove_message_bytes("foxglove.LaserScan", scan, "protobuf")
+    return {
+        "unknown schema": (
+            _raw_mcap(tmp / "unknown.mcap", ("foxglove.Nothing", *pb), "protobuf", good),
+            "no channel of this MCAP file can be read: /scan: the protobuf schema of "
+            "foxglove.Nothing cannot be used (its FileDescriptorSet does not define "
+            "foxglove.Nothing)",
+        ),
+        "protobuf that does not parse": (
+            _raw_mcap(tmp / "garbage.mcap", ("foxglove.LaserScan", *pb), "protobuf", b"\xff" * 9),
+            "message on /scan at 0.000 s cannot be decoded as foxglove.LaserScan",
+        ),
+        "JSON not an object": (
+            _raw_mcap(
+                tmp / "list.mcap",
+                ("foxglove.LaserScan", "jsonschema", b"{}"),
+                "json",
+                b"[1, 2, 3]",
+            ),
+            "cannot be decoded as foxglove.LaserScan (a JSON message is an object, not list)",
+        ),
+        "JSON that is not JSON": (
+            _raw_mcap(
+                tmp / "text.mcap", ("foxglove.LaserScan", "jsonschema", b"{}"), "json", b"{nope"
+            ),
+            "cannot be decoded as foxglove.LaserScan (Expecting property name",
+        ),
+    }
+
+
+BAD = ["unknown schema", "protobuf that does not parse", "JSON not an object",
+       "JSON that is not JSON"]  # fmt: skip
+
+
+@pytest.mark.parametrize("stream", [False, True], ids=["octree", "stream"])
+@pytest.mark.parametrize("case", BAD)
+def test_bad_foxglove_mcap_one_line_exit_2_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str, stream: bool
+) -> None:
+    (tmp_path / "in").mkdir()
+    named, message = _bad(tmp_path / "in")[case]
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    extra = ["--stream"] if stream else []
+    code, stdout, err = run(capsys, "bag2world", named, "-o", outs / "w", *STATIONARY, *extra)
+    assert code == 2 and stdout == ""
+    assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {named}: "), err
+    assert message in err
+    assert list(outs.iterdir()) == []
