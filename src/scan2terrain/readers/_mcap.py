@@ -47,17 +47,14 @@ import heapq
 import io
 import struct
 import sys
-import zlib
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, ChunkIndex, Footer, Header, Schema, Statistics
+from mcap.records import Channel, ChunkIndex, Footer, Header, Schema, Statistics
 from rosbags.interfaces import (
     Connection,
     ConnectionExtRosbag1,
@@ -69,50 +66,33 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.msg import normalize_msgtype
 
 from scan2terrain.errors import InputError
-from scan2terrain.readers import foxglove
+from scan2terrain.readers import _foxglove_decode, foxglove
 from scan2terrain.readers._bag_errors import _one_line, _undecodable
-from scan2terrain.readers._bag_source import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET
+from scan2terrain.readers._mcap_layout import (
+    _DAMAGED,
+    _MESSAGE_HEAD,
+    _MESSAGE_HEAD_SIZE,
+    _OPLEN,
+    MAGIC,
+    RUN_BYTES,
+    _Block,
+    _chunk_bytes,
+    _Damaged,
+    _Layout,
+    _parse,
+    _read_chunk,
+    _records,
+    _split,
+)
 
 if sys.version_info >= (3, 14):  # pragma: no cover
-    from compression import zstd
+    pass
 else:
-    from backports import zstd
+    pass
+
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
-
-MAGIC = b"\x89MCAP0\r\n"
-#: Unchunked messages are read back in blocks of about this many bytes.
-RUN_BYTES = 4 << 20
-_OPLEN = struct.Struct("<BQ")
-_MESSAGE_HEAD = struct.Struct("<HIQ")  # channel id, sequence, log time (publish time follows)
-_MESSAGE_HEAD_SIZE = 22
-_DAMAGED = "the MCAP file is truncated or damaged"
-
-
-class _Damaged(Exception):
-    """A record that does not fit where it is: said as one line by :class:`McapFile`."""
-
-
-class _Exact(ReadDataStream):
-    """mcap's stream over one record's bytes, failing on a short read (it returns what is
-    there): a length field inside a record that points past the record's end."""
-
-    def read(self, length: int) -> bytes:
-        data = super().read(length)
-        if len(data) != length:
-            raise EndOfFile()
-        return data
-
-
-def _parse(parse: Callable[[ReadDataStream], object], body: bytes, what: str) -> object:
-    try:
-        return parse(_Exact(io.BytesIO(body)))
-    except (EndOfFile, struct.error, UnicodeDecodeError) as exc:
-        raise _Damaged(f"a damaged {what} record") from exc
-
-
-# --- decoders -------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -155,151 +135,15 @@ DECODERS: dict[tuple[str, str], _Decoder] = {
     ),
     ("cdr", "ros2idl"): _Decoder("CDR (rosbags)", _idl_types, ros1=False),
     ("protobuf", "protobuf"): _Decoder(
-        "protobuf (the file's descriptors)", make=foxglove.protobuf_decoder
+        "protobuf (the file's descriptors)", make=_foxglove_decode.protobuf_decoder
     ),
-    ("json", "jsonschema"): _Decoder("JSON", make=foxglove.json_decoder),
+    ("json", "jsonschema"): _Decoder("JSON", make=_foxglove_decode.json_decoder),
 }
 
 
 def supported() -> str:
     """The encodings :data:`DECODERS` reads, for messages: ``ros1/ros1msg, cdr/ros2msg``."""
     return ", ".join(f"{m}/{s}" for m, s in DECODERS)
-
-
-# --- the file's layout ----------------------------------------------------------------------------
-
-
-@dataclass
-class _Block:
-    """Messages read as one: a chunk record, or a run of top-level message records."""
-
-    offset: int  #: of the chunk record, or of the run's first record
-    end: int  #: just past the last record
-    start_ns: int
-    end_ns: int
-    channels: set[int] | None  #: None: not known without reading it
-    chunk: bool
-
-
-@dataclass
-class _Layout:
-    profile: str = ""
-    library: str = ""
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    counts: dict[int, int] = field(default_factory=lambda: defaultdict(int))
-    blocks: list[_Block] = field(default_factory=list)
-    start_ns: int | None = None
-    end_ns: int | None = None
-    indexed: bool = False
-
-    def saw(self, t_ns: int) -> None:
-        self.start_ns = t_ns if self.start_ns is None else min(self.start_ns, t_ns)
-        self.end_ns = t_ns if self.end_ns is None else max(self.end_ns, t_ns)
-
-
-def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, int]]:
-    """``(offset, opcode, length)`` of each record in ``[start, stop)``, ``f`` left at its
-    body; a record that does not fit before ``stop`` is damage."""
-    pos = start
-    while pos < stop:
-        f.seek(pos)
-        head = f.read(9)
-        if len(head) < 9:
-            raise _Damaged("a record is cut short")
-        opcode, length = _OPLEN.unpack(head)
-        if length > stop - pos - 9:
-            raise _Damaged(f"a record claims {length:,} bytes, more than the file holds there")
-        yield pos, opcode, length
-        pos += 9 + length
-
-
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-
-
-def _read_chunk(body: bytes) -> Chunk:
-    """mcap's :class:`~mcap.records.Chunk` of a chunk record's body, its ``data`` a view into
-    ``body`` (``Chunk.read`` copies the data once more: a third of the read time here)."""
-    if len(body) < _CHUNK_HEAD.size:
-        raise _Damaged("a damaged chunk record")
-    start, end, size, crc, n = _CHUNK_HEAD.unpack_from(body)
-    at = _CHUNK_HEAD.size + n
-    if at + 8 > len(body):
-        raise _Damaged("a damaged chunk record")
-    (length,) = struct.unpack_from("<Q", body, at)
-    if at + 8 + length > len(body):
-        raise _Damaged("a chunk's data runs past its record")
-    try:
-        compression = bytes(body[_CHUNK_HEAD.size : at]).decode()
-    except UnicodeDecodeError as exc:
-        raise _Damaged("a damaged chunk record") from exc
-    data = memoryview(body)[at + 8 : at + 8 + length]
-    return Chunk(compression, data, end, start, crc, size)  # type: ignore[arg-type]
-
-
-def _chunk_bytes(chunk: Chunk) -> memoryview:
-    """A chunk's records, decompressed under the cap and checked against its CRC."""
-    size = chunk.uncompressed_size
-    limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * len(chunk.data))
-    if size > limit:
-        raise _Damaged(
-            f"a chunk claims {size:,} bytes, more than {MAX_ZSTD_RATIO} times its "
-            f"{len(chunk.data):,} compressed (a corrupt size, or a zstd bomb?)"
-        )
-    kind = chunk.compression
-    try:
-        if kind == "" or size == 0:
-            data = chunk.data if kind == "" else b""
-        elif kind == "zstd":
-            dz = zstd.ZstdDecompressor()
-            data = dz.decompress(chunk.data, max_length=size)
-            if not dz.eof:
-                raise _Damaged("a zstd chunk holds more than its stated size, or is cut short")
-        elif kind == "lz4":
-            import lz4.frame  # type: ignore[import-untyped]
-
-            dl = lz4.frame.LZ4FrameDecompressor()
-            data = dl.decompress(chunk.data, max_length=size)
-            if not dl.eof:
-                raise _Damaged("an lz4 chunk holds more than its stated size, or is cut short")
-        else:
-            raise _Damaged(
-                f"a chunk is compressed with {kind!r}; MCAP chunks are read with lz4, zstd or none"
-            )
-    except (zstd.ZstdError, RuntimeError, ValueError, EOFError) as exc:  # lz4 raises RuntimeError
-        raise _Damaged(f"a {kind} chunk cannot be decompressed ({_one_line(str(exc))})") from exc
-    if len(data) != size:
-        raise _Damaged(f"a chunk holds {len(data):,} bytes, not the {size:,} it states")
-    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise _Damaged("a chunk fails its CRC check (corrupt data)")
-    return memoryview(data)
-
-
-def _split(data: bytes | memoryview) -> Iterator[tuple[int, int, int, int]]:
-    """``(opcode, body start, body end, log time or -1)`` of each record in a chunk's bytes;
-    for messages the body starts at the payload and the channel id is packed in the opcode's
-    place as ``opcode | channel << 8``."""
-    pos, n = 0, len(data)
-    oplen, head = _OPLEN.unpack_from, _MESSAGE_HEAD.unpack_from
-    message = Opcode.MESSAGE
-    while pos < n:
-        if pos + 9 > n:
-            raise _Damaged("a chunk's last record is cut short")
-        opcode, length = oplen(data, pos)
-        body, end = pos + 9, pos + 9 + length
-        if end > n:
-            raise _Damaged(f"a record in a chunk claims {length:,} bytes, past the chunk's end")
-        if opcode == message:
-            if length < _MESSAGE_HEAD_SIZE:
-                raise _Damaged("a message record shorter than its header")
-            channel, _, log_time = head(data, body)
-            yield message | channel << 8, body + _MESSAGE_HEAD_SIZE, end, log_time
-        else:
-            yield opcode, body, end, -1
-        pos = end
-
-
-# --- the reader -----------------------------------------------------------------------------------
 
 
 class McapFile:
