@@ -35,22 +35,34 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.geometry._voxel_contacts import (
+    _block_index,
+    _Diagonals,
+    _diagonals,
+    _sheet_tables,
+)
+from scan2terrain.geometry._voxel_lattice import _Lattice, _unique_rows
 from scan2terrain.geometry.mesh import Mesh
 
 __all__ = ["SPLIT", "SPLIT_MAX", "TooManyTriangles", "VoxelChunk", "mesh_voxels"]
 
+
 #: How far the copies of a vertex where solids touch only at an edge or a corner move apart:
 #: this fraction of a voxel, at most ``SPLIT_MAX`` metres (0.5 mm at 5 cm voxels).
 SPLIT = 0.01
+
+
 SPLIT_MAX = 1e-3
+
 
 #: The six face directions: (axis, sign); in-plane axes (u, v) make (u, v, axis) right-handed.
 _DIRS = ((0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1))
+
+
 _UV = {0: (1, 2), 1: (2, 0), 2: (0, 1)}
 
 
@@ -173,66 +185,6 @@ def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as 
     return chunk
 
 
-# --- the lattice ---------------------------------------------------------------------------
-
-
-def _unique_rows(
-    table: NDArray[np.int64],
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """``np.unique(table, axis=0, return_index=True, return_inverse=True)`` for non-negative
-    int64 columns, packed into one int64 key when they fit (10x faster than rows)."""
-    width = table.max(axis=0) + 1 if len(table) else np.ones(table.shape[1], np.int64)
-    if float(np.prod(width.astype(np.float64))) < 2.0**62 and (table >= 0).all():
-        key = np.zeros(len(table), np.int64)
-        for c in range(table.shape[1]):
-            key = key * width[c] + table[:, c]
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    else:  # pragma: no cover - spans beyond 2^62 packed values
-        _, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
-    return table[first], first, inverse.reshape(-1)
-
-
-#: Largest chunk volume (voxels, with a border) looked up through a dense bitmap.
-DENSE_MAX = 1 << 27
-
-
-class _Lattice:
-    """Occupied voxels (shifted to >= 1) as sorted int64 codes, with their chunks."""
-
-    def __init__(self, vox: NDArray[np.int64], dims: NDArray[np.int64], chunk: NDArray[np.int64]):
-        self.vox, self.dims = vox, dims
-        self.codes_unsorted = self.encode(vox)
-        order = np.argsort(self.codes_unsorted, kind="stable")
-        self.codes = self.codes_unsorted[order]
-        self.chunk_sorted = chunk[order]
-        self.chunk = chunk
-        # A chunk's voxels as a dense bitmap when it is small enough (a 16 m chunk of 5 cm
-        # voxels: 322^3 bytes, 33 MB), for one chunk only (chunk ids all equal).
-        self.dense: NDArray[np.bool_] | None = None
-        if float(np.prod(dims.astype(np.float64))) <= DENSE_MAX and (chunk == chunk[0]).all():
-            self.dense = np.zeros(int(np.prod(dims)), bool)
-            self.dense[self.codes] = True
-
-    def encode(self, p: NDArray[np.int64]) -> NDArray[np.int64]:
-        d = self.dims
-        code: NDArray[np.int64] = (p[..., 0] * d[1] + p[..., 1]) * d[2] + p[..., 2]
-        return code
-
-    def occupied(self, p: NDArray[np.int64], chunk: NDArray[np.int64]) -> NDArray[np.bool_]:
-        """Whether voxel ``p`` (shifted coordinates) is occupied and in chunk ``chunk``."""
-        code = self.encode(p)
-        if self.dense is not None:  # one chunk: a bitmap lookup, 5-10x a binary search
-            hit: NDArray[np.bool_] = self.dense[code]
-            return hit
-        at = np.searchsorted(self.codes, code)
-        at = np.minimum(at, len(self.codes) - 1)
-        found: NDArray[np.bool_] = (self.codes[at] == code) & (self.chunk_sorted[at] == chunk)
-        return found
-
-
-# --- faces and rectangles ------------------------------------------------------------------
-
-
 @dataclass
 class _Faces:
     group: NDArray[np.int64]  #: plane id (chunk, direction, layer), dense
@@ -326,59 +278,6 @@ def _runs_merged(
     s = np.flatnonzero(new_rect)
     e = np.append(s[1:], len(rg))
     return rg[s], first[s], rx0[s], rx1[s], ry[s], ry[e - 1] + 1
-
-
-# --- polygons: rectangles with the points inserted on their edges ---------------------------
-
-
-@dataclass
-class _Diagonals:
-    """Unit lattice segments where two occupied voxels touch only along that edge (the other two
-    voxels around it empty): each gets one midpoint per voxel, so the two solids' faces use
-    different edges there. Coordinates doubled (the midpoint is odd along its line)."""
-
-    line: NDArray[np.int64]  #: (D, 5) chunk, axis, a, b (doubled), quadrant of the voxel
-    along: NDArray[np.int64]  #: doubled coordinate of the midpoint along the line (odd)
-    xyz: NDArray[np.float64]  #: (D, 3) position, lattice units, hair move included
-
-
-def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
-    lines, along, xyz = [], [], []
-    vox, chunk = grid.vox, grid.chunk
-    for t in range(3):
-        a, b = [x for x in range(3) if x != t]
-        for sb in (1, -1):
-            ea = np.zeros(3, np.int64)
-            eb = np.zeros(3, np.int64)
-            ea[a], eb[b] = 1, sb
-            hit = (
-                grid.occupied(vox + ea + eb, chunk)
-                & ~grid.occupied(vox + ea, chunk)
-                & ~grid.occupied(vox + eb, chunk)
-            )
-            va = vox[hit]
-            line_a = va[:, a] + 1
-            line_b = va[:, b] + (1 if sb > 0 else 0)
-            for voxel in (va, va + ea + eb):  # the two voxels touching along the segment
-                qa = voxel[:, a] - (line_a - 1)
-                qb = voxel[:, b] - (line_b - 1)
-                lines.append(
-                    np.column_stack(
-                        [chunk[hit], np.full(len(va), t), 2 * line_a, 2 * line_b, qa + 2 * qb]
-                    )
-                )
-                along.append(2 * va[:, t] + 1)
-                toward = np.zeros((len(va), 3))
-                toward[:, a] = voxel[:, a] + 0.5 - line_a
-                toward[:, b] = voxel[:, b] + 0.5 - line_b
-                point = np.zeros((len(va), 3))
-                point[:, t] = va[:, t] + 0.5
-                point[:, a] = line_a
-                point[:, b] = line_b
-                xyz.append(point + toward / np.sqrt(0.5) * hair)
-    if not lines:  # pragma: no cover - the loops always run
-        return _Diagonals(np.zeros((0, 5), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
-    return _Diagonals(np.concatenate(lines), np.concatenate(along), np.concatenate(xyz))
 
 
 @dataclass
@@ -578,78 +477,6 @@ def _normals(direction: NDArray[np.int64]) -> NDArray[np.int64]:
     return out
 
 
-# --- sheets around a vertex ----------------------------------------------------------------
-
-
-@lru_cache(maxsize=1)
-def _sheet_tables() -> tuple[NDArray[np.int8], NDArray[np.int8], NDArray[np.float64]]:
-    """For each of the 256 occupancy patterns of the 8 voxels around a lattice vertex (bit
-    ``x + 2y + 4z`` of voxel ``(x, y, z)``, 0 or 1 per axis, the vertex at their shared corner):
-    the sheet of each surface face, indexed [pattern, occupied voxel, empty voxel]; the number of
-    sheets; and each sheet's unit direction (toward its occupied voxels, away from its empty
-    ones) for the hair move."""
-    sheet = np.full((256, 8, 8), -1, np.int8)
-    count = np.zeros(256, np.int8)
-    direction = np.zeros((256, 4, 3))
-    centre = np.array([[(i >> b & 1) - 0.5 for b in range(3)] for i in range(8)])
-    pairs = [(a, a ^ (1 << bit)) for a in range(8) for bit in range(3) if not a & (1 << bit)]
-    for pattern in range(256):
-        occ = [bool(pattern >> i & 1) for i in range(8)]
-        faces = [(a, b) if occ[a] else (b, a) for a, b in pairs if occ[a] != occ[b]]
-        parent = list(range(len(faces)))
-
-        find = _Finder(parent)
-
-        # Around each half-edge from the vertex (axis t, side s) are the voxels with bit t = s.
-        for t in range(3):
-            for s in (0, 1):
-                around = [i for i, f in enumerate(faces) if _on_half_edge(f, t, s)]
-                if len(around) == 2:
-                    parent[find(around[0])] = find(around[1])
-                elif len(around) == 4:
-                    by_voxel: dict[int, list[int]] = {}
-                    for i in around:
-                        by_voxel.setdefault(faces[i][0], []).append(i)
-                    for group in by_voxel.values():
-                        parent[find(group[0])] = find(group[1])
-        roots = sorted({find(i) for i in range(len(faces))})
-        assert len(roots) <= 4, pattern  # at most 4 (a checkerboard of the 8 voxels)
-        count[pattern] = len(roots)
-        for i, (o, e) in enumerate(faces):
-            sheet[pattern, o, e] = roots.index(find(i))
-        for si, root in enumerate(roots):
-            members = [faces[i] for i in range(len(faces)) if find(i) == root]
-            solid = centre[[o for o, _ in members]].mean(0)
-            toward = solid - centre[[e for _, e in members]].mean(0)
-            norm = np.linalg.norm(toward)
-            direction[pattern, si] = toward / norm if norm > 0 else 0.0
-    return sheet, count, direction
-
-
-class _Finder:
-    """Union-find's find over ``parent`` (path halving)."""
-
-    def __init__(self, parent: list[int]) -> None:
-        self.parent = parent
-
-    def __call__(self, i: int) -> int:
-        parent = self.parent
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-
-def _on_half_edge(face: tuple[int, int], t: int, s: int) -> bool:
-    """Whether the face between voxels ``face`` touches the half-edge along axis ``t`` on side
-    ``s``: both voxels have bit t = s (the face is then parallel to that axis)."""
-    a, b = face
-    return bool((a >> t & 1) == s and (b >> t & 1) == s)
-
-
-# --- meshes --------------------------------------------------------------------------------
-
-
 def _meshes(
     p: _Polygons,
     grid: _Lattice,
@@ -735,9 +562,3 @@ def _meshes(
             )
         )
     return out
-
-
-def _block_index(rel: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Index ``x + 2y + 4z`` of a voxel in the 2x2x2 block (offsets 0 or 1)."""
-    idx: NDArray[np.int64] = rel[:, 0] + 2 * rel[:, 1] + 4 * rel[:, 2]
-    return idx
