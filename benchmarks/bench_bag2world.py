@@ -1,6 +1,7 @@
 """bag2world on a PointCloud2 bag, beside rosbags reading the same bag (by hand, not a test).
 
-    python benchmarks/bench_bag2world.py [--quick] [--cache DIR] [--formats mcap,ros1,mcap-ros1]
+    python benchmarks/bench_bag2world.py [--quick] [--cache DIR]
+        [--formats mcap,ros1,mcap-ros1,foxglove-protobuf]
 
 The data: a synthetic place, a 40 x 20 x 4 m hall (walls and floor, no roof) with pillars and
 crates (axis-aligned boxes), and a lidar on a robot driving an ellipse through it. Each cloud is
@@ -117,6 +118,7 @@ FORMAT_NAMES = {
     "mcap": "rosbag2 MCAP (no compression)",
     "ros1": "ROS1 .bag (uncompressed)",
     "mcap-ros1": "ROS1 MCAP (profile ros1, no compression)",
+    "foxglove-protobuf": "Foxglove protobuf MCAP (PointCloud + FrameTransforms, no compression)",
 }
 
 
@@ -308,11 +310,14 @@ def write_bag(path: Path, fmt: str, lap: Lap, laps: int) -> float:
     from rosbags.rosbag2 import Writer as Writer2
 
     bm = _bagmaker()
-    if fmt == "mcap-ros1":  # the ROS1 bag rewritten, as `mcap convert` does (tests/bagmaker.py)
+    if fmt in ("mcap-ros1", "foxglove-protobuf"):  # the ROS1 bag rewritten (tests/bagmaker.py)
         t0 = time.perf_counter()
         ros1 = path.with_name(path.stem + ".tmp.bag")
         write_bag(ros1, "ros1", lap, laps)
-        bm.ros1_bag_to_mcap(ros1, path, compression="none", chunk_size=1 << 20)
+        if fmt == "mcap-ros1":  # as `mcap convert` does
+            bm.ros1_bag_to_mcap(ros1, path, compression="none", chunk_size=1 << 20)
+        else:  # as the Foxglove SDKs write: foxglove.PointCloud, foxglove.FrameTransforms
+            bm.ros_bag_to_foxglove_mcap(ros1, path, "protobuf", compression="none")
         ros1.unlink()
         return time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -412,11 +417,16 @@ def mcap_alone(bag: Path, *, deserialise: bool) -> int:
     return n
 
 
-def mcap_library_alone(bag: Path) -> int:
-    """The ``mcap`` package's own reader and ROS1 decoders (``mcap-ros1-support``, if
-    installed) in a plain loop: ``iter_decoded_messages()`` over every message."""
+def mcap_library_alone(bag: Path, protobuf: bool = False) -> int:
+    """The ``mcap`` package's own reader and decoders (``mcap-ros1-support``, or
+    ``mcap-protobuf-support`` with ``protobuf``, if installed) in a plain loop:
+    ``iter_decoded_messages()`` over every message."""
     from mcap.reader import make_reader
-    from mcap_ros1.decoder import DecoderFactory  # type: ignore[import-not-found]
+
+    if protobuf:
+        from mcap_protobuf.decoder import DecoderFactory  # type: ignore[import-not-found]
+    else:
+        from mcap_ros1.decoder import DecoderFactory  # type: ignore[import-not-found,no-redef]
 
     n = 0
     with bag.open("rb") as f:
@@ -682,7 +692,7 @@ def bag_path(folder: Path, fmt: str, n: int, laps: int) -> Path:
     scene = repr((BAG_VERSION, RINGS, AZIMUTHS, ELEVATION, RANGE_MAX, POINTS, RATE_HZ, MOUNT))
     digest = hashlib.sha1(scene.encode()).hexdigest()[:8]
     name = f"points_{n}x{laps}_{digest}"
-    suffix = {"ros1": ".bag", "mcap-ros1": ".mcap"}.get(fmt, "")
+    suffix = {"ros1": ".bag", "mcap-ros1": ".mcap", "foxglove-protobuf": ".pb.mcap"}.get(fmt, "")
     return folder / (name + suffix)
 
 
@@ -779,8 +789,9 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
     for fmt in formats:
         bag = bags[fmt, n_big]
         size = size_of(bag)
-        alone = mcap_alone if fmt == "mcap-ros1" else rosbags_alone
-        who = "McapFile" if fmt == "mcap-ros1" else "rosbags"
+        ours = fmt in ("mcap-ros1", "foxglove-protobuf")
+        alone = mcap_alone if ours else rosbags_alone
+        who = "McapFile" if ours else "rosbags"
         t_raw = timed(functools.partial(alone, bag, deserialise=False), reps_read)
         t_des = timed(functools.partial(alone, bag, deserialise=True), reps_read)
         t_b2w = timed(functools.partial(bag2world, bag, out), reps_b2w)
@@ -790,13 +801,15 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
             (f"{who}: read every message", t_raw, None),
             (f"{who}: read + deserialise every message", t_des, None),
         ]
-        if fmt == "mcap-ros1":
+        if ours:
+            protobuf = fmt == "foxglove-protobuf"
             try:
-                t_lib = timed(functools.partial(mcap_library_alone, bag), reps_read)
+                t_lib = timed(functools.partial(mcap_library_alone, bag, protobuf), reps_read)
             except ImportError:
-                print("   (mcap-ros1-support is not installed: no row for mcap's own decoders)")
+                print("   (mcap's decoder package is not installed: no row for its decoders)")
             else:
-                rows.append(("mcap + mcap_ros1 decoders, plain loop", t_lib, None))
+                lib = "mcap_protobuf" if protobuf else "mcap_ros1"
+                rows.append((f"mcap + {lib} decoders, plain loop", t_lib, None))
         rows += [
             ("bag2world --insert endpoints", t_b2w, 10.0),
             ("bag2world, numba 1 thread", t_one, None),
@@ -927,7 +940,8 @@ def main() -> None:
     parser.add_argument(
         "--formats",
         default=None,
-        help="comma-separated bag formats for the throughput part: mcap, ros1, mcap-ros1 "
+        help="comma-separated bag formats for the throughput part: mcap, ros1, mcap-ros1, "
+        "foxglove-protobuf "
         "(the ROS1 bag rewritten as ROS1 MCAP) (default: mcap,ros1; --quick: mcap)",
     )
     parser.add_argument("--child", nargs=3, metavar=("BAG", "OUT", "WARM"), help=argparse.SUPPRESS)
