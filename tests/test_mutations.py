@@ -583,6 +583,26 @@ def bag(fmt: str, variant: str) -> Callable[[Path], tuple[Path, Path]]:
     return make
 
 
+def mcap_of(kind: str) -> Callable[[Path], tuple[Path, Path]]:
+    """The room's ROS1 bag rewritten as MCAP read with the ``mcap`` package: ROS1 messages
+    (profile ros1, as ``mcap convert`` writes) or Foxglove protobuf schemas."""
+
+    def make(folder: Path) -> tuple[Path, Path]:
+        from tests.bagmaker import ros1_bag_to_mcap, ros_bag_to_foxglove_mcap
+
+        ros1 = folder / "room.tmp.bag"
+        room("tf").write(ros1, "ros1")
+        path = folder / "room.mcap"
+        if kind == "ros1":
+            ros1_bag_to_mcap(ros1, path, compression="zstd")
+        else:
+            ros_bag_to_foxglove_mcap(ros1, path, "protobuf", compression="lz4")
+        ros1.unlink()
+        return path, path
+
+    return make
+
+
 def ros1_records(data: bytes) -> Iterator[tuple[int, int]]:
     """(offset, header length) of each top-level ROS1 bag record."""
     pos = len(b"#ROSBAG V2.0\n")
@@ -850,6 +870,8 @@ READERS = [
     Reader("ros1-map-msgs", bag("ros1", "tf"), BAG2WORLD, "o", map_message_mutations),
     Reader("db3", bag("sqlite3", "cloud"), convert, "o.xyz", sqlite_mutations),
     Reader("mcap", bag("mcap", "tf"), convert, "o.xyz", mcap_mutations),
+    Reader("mcap-ros1", mcap_of("ros1"), convert, "o.xyz", mcap_mutations),
+    Reader("mcap-foxglove", mcap_of("foxglove"), BAG2WORLD, "o", mcap_mutations),
 ]  # fmt: skip
 
 
