@@ -145,7 +145,7 @@ def _warm_las() -> None:
 def main() -> int:
     if not cold():  # nothing to do, nothing to say (setup runs this every time)
         return 0
-    print("scan2terrain: compiling the numba kernels once into numba's cache (about 40 s)...",
+    print("scan2terrain: compiling the numba kernels once into numba's cache (about 30 s)...",
           flush=True)  # fmt: skip
     seconds = warm()
     print(f"scan2terrain: kernels compiled in {seconds:.0f} s; later runs load them")
