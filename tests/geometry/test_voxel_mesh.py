@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scan2terrain.geometry.voxel_mesh import (
     SPLIT,
     SPLIT_MAX,
+    TooManyChunks,
     TooManyTriangles,
     VoxelChunk,
     mesh_voxels,
@@ -152,3 +153,11 @@ def test_empty_and_deterministic() -> None:
     for x, y in zip(a, b, strict=True):
         assert np.array_equal(x.mesh.vertices, y.mesh.vertices)
         assert np.array_equal(x.mesh.faces, y.mesh.faces)
+
+
+def test_too_many_chunks_is_refused_before_meshing() -> None:
+    keys = np.argwhere(np.ones((4, 4, 4), bool))
+    with pytest.raises(TooManyChunks) as err:
+        mesh_voxels(keys, 1.0, chunk_cells=1, max_chunks=10)
+    assert err.value.count == 64
+    assert len(mesh_voxels(keys, 1.0, chunk_cells=2, max_chunks=8)) == 8

@@ -19,25 +19,21 @@ class _Diagonals:
     voxels around it empty): each gets one midpoint per voxel, so the two solids' faces use
     different edges there. Coordinates doubled (the midpoint is odd along its line)."""
 
-    line: NDArray[np.int64]  #: (D, 5) chunk, axis, a, b (doubled), quadrant of the voxel
+    line: NDArray[np.int64]  #: (D, 4) axis, a, b (doubled), quadrant of the voxel
     along: NDArray[np.int64]  #: doubled coordinate of the midpoint along the line (odd)
     xyz: NDArray[np.float64]  #: (D, 3) position, lattice units, hair move included
 
 
 def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
     lines, along, xyz = [], [], []
-    vox, chunk = grid.vox, grid.chunk
+    vox = grid.vox
     for t in range(3):
         a, b = [x for x in range(3) if x != t]
         for sb in (1, -1):
             ea = np.zeros(3, np.int64)
             eb = np.zeros(3, np.int64)
             ea[a], eb[b] = 1, sb
-            hit = (
-                grid.occupied(vox + ea + eb, chunk)
-                & ~grid.occupied(vox + ea, chunk)
-                & ~grid.occupied(vox + eb, chunk)
-            )
+            hit = grid.occupied(vox + ea + eb) & ~grid.occupied(vox + ea) & ~grid.occupied(vox + eb)
             va = vox[hit]
             line_a = va[:, a] + 1
             line_b = va[:, b] + (1 if sb > 0 else 0)
@@ -45,9 +41,7 @@ def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
                 qa = voxel[:, a] - (line_a - 1)
                 qb = voxel[:, b] - (line_b - 1)
                 lines.append(
-                    np.column_stack(
-                        [chunk[hit], np.full(len(va), t), 2 * line_a, 2 * line_b, qa + 2 * qb]
-                    )
+                    np.column_stack([np.full(len(va), t), 2 * line_a, 2 * line_b, qa + 2 * qb])
                 )
                 along.append(2 * va[:, t] + 1)
                 toward = np.zeros((len(va), 3))
@@ -59,7 +53,7 @@ def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
                 point[:, b] = line_b
                 xyz.append(point + toward / np.sqrt(0.5) * hair)
     if not lines:  # pragma: no cover - the loops always run
-        return _Diagonals(np.zeros((0, 5), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+        return _Diagonals(np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
     return _Diagonals(np.concatenate(lines), np.concatenate(along), np.concatenate(xyz))
 
 

@@ -28,19 +28,15 @@ DENSE_MAX = 1 << 27
 
 
 class _Lattice:
-    """Occupied voxels (shifted to >= 1) as sorted int64 codes, with their chunks."""
+    """One chunk's occupied voxels (shifted to >= 1) as sorted int64 codes."""
 
-    def __init__(self, vox: NDArray[np.int64], dims: NDArray[np.int64], chunk: NDArray[np.int64]):
+    def __init__(self, vox: NDArray[np.int64], dims: NDArray[np.int64]):
         self.vox, self.dims = vox, dims
-        self.codes_unsorted = self.encode(vox)
-        order = np.argsort(self.codes_unsorted, kind="stable")
-        self.codes = self.codes_unsorted[order]
-        self.chunk_sorted = chunk[order]
-        self.chunk = chunk
-        # A chunk's voxels as a dense bitmap when it is small enough (a 16 m chunk of 5 cm
-        # voxels: 322^3 bytes, 33 MB), for one chunk only (chunk ids all equal).
+        self.codes = np.sort(self.encode(vox))
+        # As a dense bitmap when the chunk is small enough (a 16 m chunk of 5 cm voxels: 322^3
+        # bytes, 33 MB).
         self.dense: NDArray[np.bool_] | None = None
-        if float(np.prod(dims.astype(np.float64))) <= DENSE_MAX and (chunk == chunk[0]).all():
+        if float(np.prod(dims.astype(np.float64))) <= DENSE_MAX:
             self.dense = np.zeros(int(np.prod(dims)), bool)
             self.dense[self.codes] = True
 
@@ -49,13 +45,12 @@ class _Lattice:
         code: NDArray[np.int64] = (p[..., 0] * d[1] + p[..., 1]) * d[2] + p[..., 2]
         return code
 
-    def occupied(self, p: NDArray[np.int64], chunk: NDArray[np.int64]) -> NDArray[np.bool_]:
-        """Whether voxel ``p`` (shifted coordinates) is occupied and in chunk ``chunk``."""
+    def occupied(self, p: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Whether voxel ``p`` (shifted coordinates) is occupied."""
         code = self.encode(p)
-        if self.dense is not None:  # one chunk: a bitmap lookup, 5-10x a binary search
+        if self.dense is not None:  # a bitmap lookup, 5-10x a binary search
             hit: NDArray[np.bool_] = self.dense[code]
             return hit
-        at = np.searchsorted(self.codes, code)
-        at = np.minimum(at, len(self.codes) - 1)
-        found: NDArray[np.bool_] = (self.codes[at] == code) & (self.chunk_sorted[at] == chunk)
+        at = np.minimum(np.searchsorted(self.codes, code), len(self.codes) - 1)
+        found: NDArray[np.bool_] = self.codes[at] == code
         return found

@@ -4,19 +4,20 @@ Frames and units: a voxel is given by its integer lattice coordinates ``(i, j, k
 ``[i, i+1) x [j, j+1) x [k, k+1)`` times ``resolution`` metres, plus ``origin``; vertices are in
 metres, z up; faces wind counter-clockwise seen from outside (normals point out of the solid).
 
-The steps, each vectorised over every chunk at once (no Python loop per voxel or per face):
+The steps, each vectorised over a chunk's voxels (no Python loop per voxel or per face):
 
-1. Chunks. Voxels are grouped in cubes of ``chunk_cells`` voxels a side; each chunk is meshed as
-   if the others were empty, so every chunk's mesh is closed on its own (two chunks meet in
-   coincident faces, which a physics engine treats as two touching solids).
+1. Chunks. Voxels are grouped in cubes of ``chunk_cells`` voxels a side; each chunk is meshed on
+   its own, as if the others were empty (chunks on every core, in threads), so every chunk's
+   mesh is closed (two chunks meet in coincident faces, which a physics engine treats as two
+   touching solids).
 2. Exposed faces: a voxel face whose neighbour (same chunk) is not occupied.
-3. Rectangles: in each plane (chunk, face direction, layer) the face cells are merged into runs
+3. Rectangles: in each plane (face direction, layer) the face cells are merged into runs
    along the plane's first axis, and runs of equal extent in consecutive rows into rectangles
    (greedy meshing; faces of different ``labels``, e.g. colours, are never merged).
-4. No T-junctions: every rectangle corner that lies inside another rectangle's edge (same chunk)
-   is inserted into that edge, so the two faces that share a stretch of edge share all of its
-   vertices. A rectangle is then a convex polygon with collinear points: a fan from a corner
-   whose two edges hold no inserted point (n - 2 triangles), else a fan from its centre.
+4. No T-junctions: every rectangle corner that lies inside another rectangle's edge is inserted
+   into that edge, so the two faces that share a stretch of edge share all of its vertices. A
+   rectangle is then a convex polygon with collinear points: a fan from a corner whose two edges
+   hold no inserted point (n - 2 triangles), else a fan from its centre.
 5. 2-manifold where voxels touch only along an edge or at a corner: a lattice vertex gets one
    copy per *sheet* of surface around it, from the occupancy of the 8 voxels around it
    (:func:`_sheet_tables`: the surface faces around each of its 6 half-edges are paired, those of
@@ -48,7 +49,7 @@ from scan2terrain.geometry._voxel_contacts import (
 from scan2terrain.geometry._voxel_lattice import _Lattice, _unique_rows
 from scan2terrain.geometry.mesh import Mesh
 
-__all__ = ["SPLIT", "SPLIT_MAX", "TooManyTriangles", "VoxelChunk", "mesh_voxels"]
+__all__ = ["SPLIT", "SPLIT_MAX", "TooManyChunks", "TooManyTriangles", "VoxelChunk", "mesh_voxels"]
 
 
 #: How far the copies of a vertex where solids touch only at an edge or a corner move apart:
@@ -71,6 +72,16 @@ class TooManyTriangles(ValueError):
 
     def __init__(self, count: int, limit: int) -> None:
         super().__init__(f"{count} triangles, more than the limit of {limit}")
+        self.count = count
+        self.limit = limit
+
+
+class TooManyChunks(ValueError):
+    """The voxels span more chunks than allowed (``count`` says how many); raised before any
+    chunk is meshed."""
+
+    def __init__(self, count: int, limit: int) -> None:
+        super().__init__(f"{count} chunks, more than the limit of {limit}")
         self.count = count
         self.limit = limit
 
@@ -105,13 +116,15 @@ def mesh_voxels(
     chunk_cells: int | None = None,
     labels: NDArray[np.integer] | None = None,
     max_triangles: int | None = None,
+    max_chunks: int | None = None,
 ) -> list[VoxelChunk]:
     """Mesh the voxels at integer coordinates ``keys`` (N, 3), unique, into one closed mesh per
     chunk of ``chunk_cells`` voxels a side (None: one chunk), chunks in lattice order.
 
     ``labels`` (N,) keeps faces of different labels in different rectangles (and is reported
     per triangle). Raises :class:`TooManyTriangles` as soon as the meshes so far hold more than
-    ``max_triangles`` triangles; ``ValueError`` for bad arguments.
+    ``max_triangles`` triangles, :class:`TooManyChunks` before any meshing when the voxels span
+    more than ``max_chunks`` chunks; ``ValueError`` for bad arguments.
     """
     k = np.asarray(keys)
     if k.ndim != 2 or k.shape[1] != 3 or not np.issubdtype(k.dtype, np.integer):
@@ -138,6 +151,8 @@ def mesh_voxels(
         chunk3 = np.floor_divide(k.astype(np.int64), int(chunk_cells))
     chunk_keys, _, chunk_of = _unique_rows(chunk3 - chunk3.min(axis=0))
     chunk_keys = chunk_keys + chunk3.min(axis=0)
+    if max_chunks is not None and len(chunk_keys) > max_chunks:
+        raise TooManyChunks(len(chunk_keys), max_chunks)
     by_chunk = np.argsort(chunk_of, kind="stable")
     bounds = np.searchsorted(chunk_of[by_chunk], np.arange(len(chunk_keys) + 1))
     hair = min(SPLIT, SPLIT_MAX / resolution)
@@ -171,28 +186,25 @@ def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as 
     lo = k.min(axis=0).astype(np.int64)
     vox = k.astype(np.int64) - lo + 1  # >= 1: every neighbour is >= 0
     dims = vox.max(axis=0) + 2
-    grid = _Lattice(vox, dims, np.zeros(len(k), np.int64))
-    if len(np.unique(grid.codes)) != len(vox):
+    grid = _Lattice(vox, dims)
+    if (np.diff(grid.codes) == 0).any():
         raise ValueError("keys must be unique")
     faces = _exposed_faces(grid, lab)
     rects = _rectangles(faces)
     diag = _diagonals(grid, hair)
     polys = _polygons(rects, grid, diag)
-    (chunk,) = _meshes(
-        polys, grid, diag, chunk_keys=np.array([index]), resolution=resolution, origin=origin,
-        lo=lo, hair=hair,
-    )  # fmt: skip
-    return chunk
+    vertices, faces_, labels = _triangles(polys, grid, diag, hair)
+    xyz = (vertices + (lo - 1)) * resolution + np.asarray(origin, np.float64)
+    return VoxelChunk(index, Mesh(xyz, faces_), labels, len(k))
 
 
 @dataclass
 class _Faces:
-    group: NDArray[np.int64]  #: plane id (chunk, direction, layer), dense
+    group: NDArray[np.int64]  #: plane id (direction, layer, label), dense
     direction: NDArray[np.int64]  #: index into _DIRS
     layer: NDArray[np.int64]
     u: NDArray[np.int64]
     v: NDArray[np.int64]
-    chunk: NDArray[np.int64]
     label: NDArray[np.int64]
 
 
@@ -201,7 +213,7 @@ def _exposed_faces(grid: _Lattice, labels: NDArray[np.int64]) -> _Faces:
     for d, (axis, sign) in enumerate(_DIRS):
         step = np.zeros(3, np.int64)
         step[axis] = sign
-        exposed = ~grid.occupied(grid.vox + step, grid.chunk)
+        exposed = ~grid.occupied(grid.vox + step)
         parts.append((d, np.flatnonzero(exposed)))
     direction = np.concatenate([np.full(len(i), d, np.int64) for d, i in parts])
     which = np.concatenate([i for _, i in parts])
@@ -212,10 +224,9 @@ def _exposed_faces(grid: _Lattice, labels: NDArray[np.int64]) -> _Faces:
     va = np.array([_UV[a][1] for a, _ in _DIRS])[direction]
     rows = np.arange(len(vox))
     layer = vox[rows, axis] + (sign > 0)
-    chunk = grid.chunk[which]
     label = labels[which]
-    _, _, group = _unique_rows(np.stack([chunk, direction, layer, label - label.min()], axis=1))
-    return _Faces(group, direction, layer, vox[rows, ua], vox[rows, va], chunk, label)
+    _, _, group = _unique_rows(np.stack([direction, layer, label - label.min()], axis=1))
+    return _Faces(group, direction, layer, vox[rows, ua], vox[rows, va], label)
 
 
 @dataclass
@@ -223,7 +234,6 @@ class _Rects:
     group: NDArray[np.int64]
     direction: NDArray[np.int64]
     layer: NDArray[np.int64]
-    chunk: NDArray[np.int64]
     label: NDArray[np.int64]
     u0: NDArray[np.int64]  #: lattice lines bounding the rectangle: cells u0..u1-1, v0..v1-1
     u1: NDArray[np.int64]
@@ -249,9 +259,7 @@ def _rectangles(f: _Faces) -> _Rects:
     v1 = np.concatenate([along_u[5][keep_u], along_v[3][keep_v]])
     o = np.lexsort((u0, v0, g))  # a deterministic order
     f0 = first[o]
-    return _Rects(
-        g[o], f.direction[f0], f.layer[f0], f.chunk[f0], f.label[f0], u0[o], u1[o], v0[o], v1[o]
-    )
+    return _Rects(g[o], f.direction[f0], f.layer[f0], f.label[f0], u0[o], u1[o], v0[o], v1[o])
 
 
 def _runs_merged(
@@ -292,7 +300,6 @@ class _Polygons:
     normal: NDArray[np.int64]  #: (P, 3) that face's outward normal
     fan: NDArray[np.int64]  #: per polygon: index (0..size-1) of the fan corner, -1: centre
     centre: NDArray[np.float64]  #: (R, 3) polygon centres (lattice units)
-    chunk: NDArray[np.int64]
     label: NDArray[np.int64]
     triangle_count: NDArray[np.int64]
 
@@ -333,20 +340,19 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     rect = rep(np.arange(n), 4)
     cell = _cell_near(r, rect, (ef + et) / 2.0)  # a face cell along the edge, inside the rect
     quadrant = (cell[k, oa] - (ef[k, oa] - 1)) + 2 * (cell[k, ob] - (ef[k, ob] - 1))
-    e_chunk = r.chunk[rect]
     lo = 2 * np.minimum(ef[k, ea], et[k, ea])
     hi = 2 * np.maximum(ef[k, ea], et[k, ea])
-    # Points on lines (doubled coordinates): every corner (per chunk) on its three lines; the
+    # Points on lines (doubled coordinates): rectangle corners on their edges' lines; the
     # diagonals' midpoints on their line and quadrant (only faces of that voxel take them).
     w = 2 * int(grid.dims.max()) + 4
-    e_key = _line_key(e_chunk, ea, 2 * ef[k, oa], 2 * ef[k, ob], w)
+    e_key = _line_key(ea, 2 * ef[k, oa], 2 * ef[k, ob], w)
     # A corner matters only on the lines its rectangle has an edge along: the faces that share
     # a stretch of a line are the ones with an edge along it.
     ends = np.concatenate([e_key * w + 2 * ef[k, ea], e_key * w + 2 * et[k, ea]])
     ends = np.unique(ends)
     c_key, c_along = ends // w, ends % w
-    m_key = _line_key(diag.line[:, 0], diag.line[:, 1], diag.line[:, 2], diag.line[:, 3], w)
-    m_key = m_key * 4 + diag.line[:, 4]
+    m_key = _line_key(diag.line[:, 0], diag.line[:, 1], diag.line[:, 2], w)
+    m_key = m_key * 4 + diag.line[:, 3]
     c_first, c_count, c_order = _between(c_key, c_along, e_key, lo, hi, w)
     m_first, m_count, m_order = _between(m_key, diag.along, e_key * 4 + quadrant, lo, hi, w)
     # The inserted points of each edge, in the order the edge runs.
@@ -403,20 +409,14 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     fan = np.where(has_free, fan_pos, -1)
     tri = np.where(has_free, size - 2, size)
     centre = (corners[:, 0] + corners[:, 2]) / 2.0
-    return _Polygons(
-        start, size, points, midpoint, cells, normal, fan, centre, r.chunk, r.label, tri
-    )
+    return _Polygons(start, size, points, midpoint, cells, normal, fan, centre, r.label, tri)
 
 
 def _line_key(
-    chunk: NDArray[np.int64],
-    axis: NDArray[np.int64] | int,
-    a: NDArray[np.int64],
-    b: NDArray[np.int64],
-    w: int,
+    axis: NDArray[np.int64] | int, a: NDArray[np.int64], b: NDArray[np.int64], w: int
 ) -> NDArray[np.int64]:
-    """One int64 per lattice line (chunk, axis, its two other coordinates, doubled, < w)."""
-    key: NDArray[np.int64] = ((chunk * 3 + axis) * w + a) * w + b
+    """One int64 per lattice line (axis, its two other coordinates, doubled, < w)."""
+    key: NDArray[np.int64] = (axis * w + a) * w + b
     return key
 
 
@@ -477,28 +477,20 @@ def _normals(direction: NDArray[np.int64]) -> NDArray[np.int64]:
     return out
 
 
-def _meshes(
-    p: _Polygons,
-    grid: _Lattice,
-    diag: _Diagonals,
-    *,
-    chunk_keys: NDArray[np.int64],
-    resolution: float,
-    origin: tuple[float, float, float],
-    lo: NDArray[np.int64],
-    hair: float,
-) -> list[VoxelChunk]:
+def _triangles(
+    p: _Polygons, grid: _Lattice, diag: _Diagonals, hair: float
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """The chunk's vertices (lattice units, shifted), triangles and each triangle's label."""
     sheet_of, n_sheets, direction = _sheet_tables()
     n_poly = len(p.size)
-    chunk_pt = np.repeat(p.chunk, p.size)
     lattice = p.midpoint < 0
-    # Lattice points: one vertex per (chunk, point, sheet), the sheet from the 8 voxels around.
-    pts, cells, chunk_l = p.points[lattice], p.cells[lattice], chunk_pt[lattice]
+    # Lattice points: one vertex per (point, sheet), the sheet from the 8 voxels around.
+    pts, cells = p.points[lattice], p.cells[lattice]
     base = pts - 1  # the block's voxel (0, 0, 0)
     pattern = np.zeros(len(base), np.int64)
     for i in range(8):
         off = np.array([i & 1, i >> 1 & 1, i >> 2 & 1])
-        pattern |= grid.occupied(base + off, chunk_l).astype(np.int64) << i
+        pattern |= grid.occupied(base + off).astype(np.int64) << i
     o_idx = _block_index(cells - base)
     e_idx = _block_index(cells + p.normal[lattice] - base)
     sheet = sheet_of[pattern, o_idx, e_idx].astype(np.int64)
@@ -506,26 +498,22 @@ def _meshes(
         raise AssertionError("a polygon point is not on the surface")
     split = n_sheets[pattern] > 1
     sheet = np.where(split, sheet, 0)
-    code = grid.encode(pts) * 4 + sheet
-    uniq, first, lid = _unique_rows(np.column_stack([chunk_l, code]))
+    uniq, first, lid = np.unique(
+        grid.encode(pts) * 4 + sheet, return_index=True, return_inverse=True
+    )
     moved = np.where(split[:, None], direction[pattern, sheet] * hair, 0.0)
-    vert_xyz = [pts[first].astype(np.float64) + moved[first]]
-    vert_chunk = [uniq[:, 0]]
     vid = np.empty(len(p.points), np.int64)
-    vid[lattice] = lid
+    vid[lattice] = lid.reshape(-1)
     # Midpoints of diagonal edges: the ones used, in their order.
     used, mid_id = np.unique(p.midpoint[~lattice], return_inverse=True)
     vid[~lattice] = len(uniq) + mid_id.reshape(-1)
-    vert_xyz.append(diag.xyz[used])
-    vert_chunk.append(diag.line[used, 0])
     # Polygon centres (fans from the centre).
     use_centre = p.fan < 0
     centre_vid = np.full(n_poly, -1, np.int64)
     centre_vid[use_centre] = len(uniq) + len(used) + np.arange(int(use_centre.sum()))
-    vert_xyz.append(p.centre[use_centre])
-    vert_chunk.append(p.chunk[use_centre])
-    xyz_all = np.concatenate(vert_xyz)
-    chunk_all = np.concatenate(vert_chunk)
+    vertices = np.concatenate(
+        [pts[first].astype(np.float64) + moved[first], diag.xyz[used], p.centre[use_centre]]
+    )
     # Triangles: fans from a corner (n - 2) or from the centre (n).
     tri_count = p.triangle_count
     poly_of_tri = np.repeat(np.arange(n_poly), tri_count)
@@ -535,30 +523,5 @@ def _meshes(
     a = np.where(corner_fan, vid[start + np.maximum(fan, 0)], centre_vid[poly_of_tri])
     b_local = np.where(corner_fan, (fan + 1 + j) % size, j % size)
     c_local = np.where(corner_fan, (fan + 2 + j) % size, (j + 1) % size)
-    tris = np.column_stack([a, vid[start + b_local], vid[start + c_local]])
-    tri_chunk = p.chunk[poly_of_tri]
-    tri_label = p.label[poly_of_tri]
-    # Split by chunk, vertices renumbered per chunk.
-    v_order = np.argsort(chunk_all, kind="stable")
-    new_id = np.empty(len(v_order), np.int64)
-    new_id[v_order] = np.arange(len(v_order))
-    n_chunks = len(chunk_keys)
-    v_bounds = np.searchsorted(chunk_all[v_order], np.arange(n_chunks + 1))
-    t_order = np.argsort(tri_chunk, kind="stable")
-    t_bounds = np.searchsorted(tri_chunk[t_order], np.arange(n_chunks + 1))
-    voxels = np.bincount(grid.chunk, minlength=n_chunks)
-    shift = (lo - 1).astype(np.float64)
-    out = []
-    for c in range(n_chunks):
-        vs = v_order[v_bounds[c] : v_bounds[c + 1]]
-        ts = t_order[t_bounds[c] : t_bounds[c + 1]]
-        xyz = (xyz_all[vs] + shift) * resolution + np.asarray(origin, np.float64)
-        out.append(
-            VoxelChunk(
-                (int(chunk_keys[c, 0]), int(chunk_keys[c, 1]), int(chunk_keys[c, 2])),
-                Mesh(xyz, (new_id[tris[ts]] - v_bounds[c]).astype(np.int64)),
-                tri_label[ts],
-                int(voxels[c]),
-            )
-        )
-    return out
+    tris = np.column_stack([a, vid[start + b_local], vid[start + c_local]]).astype(np.int64)
+    return vertices, tris, p.label[poly_of_tri]

@@ -80,7 +80,7 @@ def voxel_mesh_world(
     ``colours`` (the points' mean colour per voxel) the visuals carry them."""
     from scan2terrain.exporters import meshfile
     from scan2terrain.exporters.preview import preview_png
-    from scan2terrain.geometry.voxel_mesh import TooManyTriangles, mesh_voxels
+    from scan2terrain.geometry.voxel_mesh import TooManyChunks, TooManyTriangles, mesh_voxels
     from scan2terrain.grids.occupied import occupied_voxels
     from scan2terrain.grids.projection import column_stats, project_occupancy
 
@@ -118,21 +118,21 @@ def voxel_mesh_world(
                 f" {w.min_voxels}: nothing is left"
             )  # fmt: skip
     cells = max(1, round(w.chunk / resolution))
-    n_chunks = len(np.unique(np.floor_divide(lattice, cells), axis=0))
-    if n_chunks > MAX_CHUNKS:
-        raise InputError(
-            source,
-            f"--chunk {w.chunk:g} m cuts the voxels into {n_chunks} chunks, more than"
-            f" {MAX_CHUNKS} (three mesh files and two SDF elements each): choose a larger"
-            " --chunk",
-        )
     palette = labels = None
     if rgb is not None:
         palette, labels = meshfile.quantise_colours(rgb, MAX_COLOURS)
     try:
         chunks = mesh_voxels(
-            lattice, resolution, chunk_cells=cells, labels=labels, max_triangles=w.max_triangles
-        )
+            lattice, resolution, chunk_cells=cells, labels=labels,
+            max_triangles=w.max_triangles, max_chunks=MAX_CHUNKS,
+        )  # fmt: skip
+    except TooManyChunks as exc:
+        raise InputError(
+            source,
+            f"--chunk {w.chunk:g} m cuts the voxels into {exc.count} chunks, more than"
+            f" {MAX_CHUNKS} (three mesh files and two SDF elements each): choose a larger"
+            " --chunk",
+        ) from exc
     except TooManyTriangles as exc:
         raise InputError(
             source,
