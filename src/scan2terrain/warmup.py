@@ -53,29 +53,18 @@ def dispatchers() -> list[Any]:
 
 
 def cold() -> bool:
-    """Whether some kernel has never been written to numba's cache (a run will compile it).
-    Looks for the cache index files only: no numba import."""
-    for name in KERNEL_MODULES:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:  # pragma: no cover - installed package
-            return True
-        source = Path(spec.origin)
-        stem = source.stem
-        places = [source.parent / "__pycache__", *_user_wide(source)]
-        if not any(any(p.glob(f"{stem}.*.nbi")) for p in places if p.is_dir()):
-            return True
-    return False
-
-
-def _user_wide(source: Path) -> list[Path]:
-    """Where numba caches a module whose folder is read-only (its user-wide cache)."""
-    import os
-
-    root = os.environ.get("NUMBA_CACHE_DIR") or str(Path.home() / ".cache" / "numba")
-    found = [Path(root)]
-    parent = Path(root) / str(source.parent).lstrip(os.sep)
-    found.append(parent)
-    return found
+    """Whether some kernel module has nothing in numba's cache yet (a run will compile it).
+    Each module's cache folder comes from its dispatchers' own cache locator (beside the
+    package, numba's user-wide cache for a read-only package, or NUMBA_CACHE_DIR), so the
+    answer follows numba's rules instead of guessing them. Imports numba and the kernel
+    modules (a command that needs them imports them anyway); compiles nothing."""
+    folders: dict[str, Path] = {}
+    for d in dispatchers():
+        folders.setdefault(d.__module__, Path(d._cache._cache_path))
+    return any(
+        not any(folder.glob(f"{module.rsplit('.', 1)[-1]}.*.nbi"))
+        for module, folder in folders.items()
+    )
 
 
 def warm() -> float:
