@@ -161,3 +161,24 @@ def test_too_many_chunks_is_refused_before_meshing() -> None:
         mesh_voxels(keys, 1.0, chunk_cells=1, max_chunks=10)
     assert err.value.count == 64
     assert len(mesh_voxels(keys, 1.0, chunk_cells=2, max_chunks=8)) == 8
+
+
+def test_sparse_lookups_give_the_same_meshes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Chunks too large for the dense tables (bitmaps, point tables, chunk counts) take sorted
+    lookups instead: the same meshes, byte for byte."""
+    from scan2terrain.geometry import _voxel_lattice, voxel_mesh
+
+    rng = np.random.default_rng(7)
+    keys = np.argwhere(rng.random((14, 12, 10)) < 0.45)
+    labels = rng.integers(0, 3, len(keys))
+    dense = mesh_voxels(keys, 0.1, chunk_cells=6, labels=labels)
+    monkeypatch.setattr(_voxel_lattice, "DENSE_MAX", 0)
+    monkeypatch.setattr(_voxel_lattice, "DENSE_UNIQUE_MAX", 0)
+    monkeypatch.setattr(voxel_mesh, "DENSE_CHUNKS_MAX", 0)
+    sparse = mesh_voxels(keys, 0.1, chunk_cells=6, labels=labels)
+    assert len(dense) == len(sparse) > 1
+    for a, b in zip(dense, sparse, strict=True):
+        assert a.index == b.index
+        assert np.array_equal(a.mesh.vertices, b.mesh.vertices)
+        assert np.array_equal(a.mesh.faces, b.mesh.faces)
+        assert np.array_equal(a.face_labels, b.face_labels)

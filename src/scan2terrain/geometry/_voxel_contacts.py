@@ -121,9 +121,3 @@ def _on_half_edge(face: tuple[int, int], t: int, s: int) -> bool:
     ``s``: both voxels have bit t = s (the face is then parallel to that axis)."""
     a, b = face
     return bool((a >> t & 1) == s and (b >> t & 1) == s)
-
-
-def _block_index(rel: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Index ``x + 2y + 4z`` of a voxel in the 2x2x2 block (offsets 0 or 1)."""
-    idx: NDArray[np.int64] = rel[:, 0] + 2 * rel[:, 1] + 4 * rel[:, 2]
-    return idx

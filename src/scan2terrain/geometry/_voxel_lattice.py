@@ -23,34 +23,91 @@ def _unique_rows(
     return table[first], first, inverse.reshape(-1)
 
 
-#: Largest chunk volume (voxels, with a border) looked up through a dense bitmap.
+def _lex_order(keys: tuple[NDArray[np.int64], ...]) -> NDArray[np.intp]:
+    """``np.lexsort(keys)`` (the last key first) for int64 keys whose rows are unique: one
+    argsort of the keys packed into one int64 when they fit (3-5x faster)."""
+    shifted = [k - k.min() if len(k) else k for k in keys]
+    width = [int(k.max()) + 1 if len(k) else 1 for k in shifted]
+    if float(np.prod(np.asarray(width, np.float64))) >= 2.0**62:  # pragma: no cover - huge spans
+        return np.lexsort(keys)
+    packed = np.zeros(len(keys[0]), np.int64)
+    for k, w in zip(reversed(shifted), reversed(width), strict=True):
+        packed = packed * w + k
+    return np.argsort(packed)
+
+
+#: Largest code range (bytes) looked up through a dense bitmap rather than a binary search.
 DENSE_MAX = 1 << 27
 
 
+#: Largest lattice (points) whose distinct codes are found through a dense table (4 bytes each).
+DENSE_UNIQUE_MAX = 1 << 24
+
+
+class _CodeSet:
+    """A set of non-negative int64 codes below ``size``: a dense bitmap when ``size`` is at most
+    ``DENSE_MAX`` (a lookup 5-10x a binary search), else the sorted codes."""
+
+    def __init__(self, codes: NDArray[np.int64], size: int, *, is_sorted: bool = False):
+        self.dense: NDArray[np.bool_] | None = None
+        self.sorted = codes
+        if size <= DENSE_MAX:
+            self.dense = np.zeros(size, bool)
+            self.dense[codes] = True
+        elif not is_sorted:
+            self.sorted = np.sort(codes)
+
+    def contains(self, code: NDArray[np.int64]) -> NDArray[np.bool_]:
+        if self.dense is not None:
+            hit: NDArray[np.bool_] = self.dense[code]
+            return hit
+        if len(self.sorted) == 0:
+            return np.zeros(code.shape, bool)
+        at = np.minimum(np.searchsorted(self.sorted, code), len(self.sorted) - 1)
+        found: NDArray[np.bool_] = self.sorted[at] == code
+        return found
+
+
 class _Lattice:
-    """One chunk's occupied voxels (shifted to >= 1) as sorted int64 codes."""
+    """One chunk's occupied voxels (shifted to >= 1) as sorted int64 codes; ``vox`` in that
+    order, ``order`` the permutation from the voxels given."""
 
     def __init__(self, vox: NDArray[np.int64], dims: NDArray[np.int64]):
-        self.vox, self.dims = vox, dims
-        self.codes = np.sort(self.encode(vox))
-        # As a dense bitmap when the chunk is small enough (a 16 m chunk of 5 cm voxels: 322^3
-        # bytes, 33 MB).
-        self.dense: NDArray[np.bool_] | None = None
-        if float(np.prod(dims.astype(np.float64))) <= DENSE_MAX:
-            self.dense = np.zeros(int(np.prod(dims)), bool)
-            self.dense[self.codes] = True
+        self.dims = dims
+        codes = self.encode(vox)
+        self.order = np.argsort(codes)
+        self.codes = codes[self.order]
+        self.vox = vox[self.order]
+        # A 16 m chunk of 5 cm voxels: 322^3 bytes, 33 MB.
+        self.set = _CodeSet(self.codes, int(np.prod(dims.astype(np.float64))), is_sorted=True)
+        self.strides = np.array([dims[1] * dims[2], dims[2], 1], np.int64)
 
     def encode(self, p: NDArray[np.int64]) -> NDArray[np.int64]:
         d = self.dims
         code: NDArray[np.int64] = (p[..., 0] * d[1] + p[..., 1]) * d[2] + p[..., 2]
         return code
 
+    def decode(self, code: NDArray[np.int64]) -> NDArray[np.int64]:
+        d = self.dims
+        out = np.empty((len(code), 3), np.int64)
+        rest, out[:, 2] = np.divmod(code, d[2])
+        out[:, 0], out[:, 1] = np.divmod(rest, d[1])
+        return out
+
+    def unique(self, code: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``np.unique(code, return_inverse=True)`` for codes of this lattice: through a dense
+        table when the lattice is small enough (no sort)."""
+        size = int(np.prod(self.dims.astype(np.float64)))
+        if size > DENSE_UNIQUE_MAX:
+            values, inverse = np.unique(code, return_inverse=True)
+            return values, inverse.reshape(-1)
+        seen = np.zeros(size, bool)
+        seen[code] = True
+        values = np.flatnonzero(seen)
+        index = np.zeros(size, np.int32)
+        index[values] = np.arange(len(values), dtype=np.int32)
+        return values, index[code].astype(np.int64)
+
     def occupied(self, p: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Whether voxel ``p`` (shifted coordinates) is occupied."""
-        code = self.encode(p)
-        if self.dense is not None:  # a bitmap lookup, 5-10x a binary search
-            hit: NDArray[np.bool_] = self.dense[code]
-            return hit
-        at = np.minimum(np.searchsorted(self.codes, code), len(self.codes) - 1)
-        found: NDArray[np.bool_] = self.codes[at] == code
-        return found
+        return self.set.contains(self.encode(p))

@@ -41,12 +41,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.geometry._voxel_contacts import (
-    _block_index,
     _Diagonals,
     _diagonals,
     _sheet_tables,
 )
-from scan2terrain.geometry._voxel_lattice import _Lattice, _unique_rows
+from scan2terrain.geometry._voxel_lattice import _CodeSet, _Lattice, _lex_order, _unique_rows
 from scan2terrain.geometry.mesh import Mesh
 
 __all__ = ["SPLIT", "SPLIT_MAX", "TooManyChunks", "TooManyTriangles", "VoxelChunk", "mesh_voxels"]
@@ -138,19 +137,13 @@ def mesh_voxels(
     lab = np.zeros(len(k), np.int64) if labels is None else np.asarray(labels, np.int64)
     if lab.shape != (len(k),):
         raise ValueError(f"labels must have shape ({len(k)},), got {lab.shape}")
-    order = np.lexsort((k[:, 2], k[:, 1], k[:, 0]))  # one answer, whatever the input order
-    k, lab = k[order], lab[order]
     span = k.max(axis=0).astype(np.float64) - k.min(axis=0) + 3
     if float(np.prod(span)) >= 2.0**62:
         raise ValueError("keys span too large a range")
     # Chunks on the original lattice (so they do not depend on the other voxels), meshed one
-    # at a time: memory is bounded by the largest chunk, not by the whole map.
-    if chunk_cells is None:
-        chunk3 = np.zeros((len(k), 3), np.int64)
-    else:
-        chunk3 = np.floor_divide(k.astype(np.int64), int(chunk_cells))
-    chunk_keys, _, chunk_of = _unique_rows(chunk3 - chunk3.min(axis=0))
-    chunk_keys = chunk_keys + chunk3.min(axis=0)
+    # at a time: memory is bounded by the largest chunk, not by the whole map. Each chunk sorts
+    # its own voxels (one answer, whatever the input order).
+    chunk_keys, chunk_of = _chunks(k, chunk_cells)
     if max_chunks is not None and len(chunk_keys) > max_chunks:
         raise TooManyChunks(len(chunk_keys), max_chunks)
     by_chunk = np.argsort(chunk_of, kind="stable")
@@ -175,6 +168,32 @@ def mesh_voxels(
     return out
 
 
+#: Largest box of chunks whose voxels are counted per chunk in a dense table (else sorted).
+DENSE_CHUNKS_MAX = 1 << 24
+
+
+def _chunks(
+    k: NDArray[np.integer], chunk_cells: int | None
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The chunks the voxels fall in, in lattice order, and each voxel's chunk: through a count
+    per chunk of the bounding box when that box is small (one pass, no sort of the voxels)."""
+    if chunk_cells is None:
+        return np.zeros((1, 3), np.int64), np.zeros(len(k), np.int64)
+    chunk3 = np.floor_divide(k.astype(np.int64), int(chunk_cells))
+    lo = chunk3.min(axis=0)
+    chunk3 -= lo
+    dims = chunk3.max(axis=0) + 1
+    if float(np.prod(dims.astype(np.float64))) > DENSE_CHUNKS_MAX:
+        keys, _, chunk_of = _unique_rows(chunk3)
+        return keys + lo, chunk_of
+    code = (chunk3[:, 0] * dims[1] + chunk3[:, 1]) * dims[2] + chunk3[:, 2]
+    present = np.flatnonzero(np.bincount(code, minlength=int(np.prod(dims))))
+    dense_id = np.zeros(int(np.prod(dims)), np.int64)
+    dense_id[present] = np.arange(len(present))
+    keys = np.stack(np.unravel_index(present, tuple(int(d) for d in dims)), axis=1)
+    return keys.astype(np.int64) + lo, dense_id[code]
+
+
 def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as mesh_voxels has them
     k: NDArray[np.integer],
     lab: NDArray[np.int64],
@@ -186,10 +205,10 @@ def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as 
     lo = k.min(axis=0).astype(np.int64)
     vox = k.astype(np.int64) - lo + 1  # >= 1: every neighbour is >= 0
     dims = vox.max(axis=0) + 2
-    grid = _Lattice(vox, dims)
+    grid = _Lattice(vox, dims)  # sorts the voxels (x, then y, then z)
     if (np.diff(grid.codes) == 0).any():
         raise ValueError("keys must be unique")
-    faces = _exposed_faces(grid, lab)
+    faces = _exposed_faces(grid, lab[grid.order])
     rects = _rectangles(faces)
     diag = _diagonals(grid, hair)
     polys = _polygons(rects, grid, diag)
@@ -257,7 +276,7 @@ def _rectangles(f: _Faces) -> _Rects:
     u1 = np.concatenate([along_u[3][keep_u], along_v[5][keep_v]])
     v0 = np.concatenate([along_u[4][keep_u], along_v[2][keep_v]])
     v1 = np.concatenate([along_u[5][keep_u], along_v[3][keep_v]])
-    o = np.lexsort((u0, v0, g))  # a deterministic order
+    o = _lex_order((u0, v0, g))  # a deterministic order
     f0 = first[o]
     return _Rects(g[o], f.direction[f0], f.layer[f0], f.label[f0], u0[o], u1[o], v0[o], v1[o])
 
@@ -267,14 +286,14 @@ def _runs_merged(
 ) -> tuple[NDArray[np.int64], ...]:
     """Runs along x in each (group, y) row, then runs of equal [x0, x1) in consecutive rows
     merged: (group, a face of it, x0, x1, y0, y1) per rectangle."""
-    order = np.lexsort((x, y, group))
+    order = _lex_order((x, y, group))
     g, xs, ys = group[order], x[order], y[order]
     new_run = np.ones(len(g), bool)
     new_run[1:] = (g[1:] != g[:-1]) | (ys[1:] != ys[:-1]) | (xs[1:] != xs[:-1] + 1)
     start = np.flatnonzero(new_run)
     end = np.append(start[1:], len(g))
     rg, ry, rx0, rx1, first = g[start], ys[start], xs[start], xs[end - 1] + 1, order[start]
-    o = np.lexsort((ry, rx1, rx0, rg))
+    o = _lex_order((ry, rx1, rx0, rg))
     rg, ry, rx0, rx1, first = rg[o], ry[o], rx0[o], rx1[o], first[o]
     new_rect = np.ones(len(rg), bool)
     new_rect[1:] = (
@@ -296,8 +315,9 @@ class _Polygons:
     size: NDArray[np.int64]  #: points per polygon
     points: NDArray[np.int64]  #: (P, 3) lattice points (shifted coordinates; midpoints: -1)
     midpoint: NDArray[np.int64]  #: (P,) index into the diagonals' midpoints, -1 for lattice points
-    cells: NDArray[np.int64]  #: (P, 3) the voxel of a face incident to each point (shifted)
-    normal: NDArray[np.int64]  #: (P, 3) that face's outward normal
+    #: (P,) a face incident to each lattice point, as the index (0..7, ``x + 2y + 4z``) of
+    #: its occupied voxel in the 2x2x2 block around the point, times 8, plus its empty voxel's
+    block: NDArray[np.int64]
     fan: NDArray[np.int64]  #: per polygon: index (0..size-1) of the fan corner, -1: centre
     centre: NDArray[np.float64]  #: (R, 3) polygon centres (lattice units)
     label: NDArray[np.int64]
@@ -311,16 +331,42 @@ def _to3d(
     v: NDArray[np.int64],
 ) -> NDArray[np.int64]:
     out = np.empty((len(direction), 3), np.int64)
-    for d, (axis, _) in enumerate(_DIRS):
-        m = direction == d
-        ua, va = _UV[axis]
-        out[m, axis] = layer[m]
-        out[m, ua] = u[m]
-        out[m, va] = v[m]
+    flat = out.reshape(-1)
+    row = 3 * np.arange(len(direction))
+    flat[row + _AXES[direction, 0]] = layer
+    flat[row + _AXES[direction, 1]] = u
+    flat[row + _AXES[direction, 2]] = v
     return out
 
 
+#: Per face direction: its axis and in-plane axes (u, v).
+_AXES = np.array([(axis, *_UV[axis]) for axis, _ in _DIRS], np.int64)
+
+
 _OTHER = np.array([[1, 2], [0, 2], [0, 1]])
+
+
+def _edge_tables() -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Per (face direction, rectangle edge 0..3): the axis the edge runs along; the quadrant of
+    the rectangle's faces' voxels around the edge's line (0..3, the line's two other axes in
+    order, 1 where the voxel is on the line's high side); and the same as a block index
+    (``x + 2y + 4z``) in the 2x2x2 block around a point of the edge, the along axis left 0.
+    Edge 0 runs at v = v0 along u, 1 at u = u1 along v, 2 at v = v1, 3 at u = u0."""
+    along = np.zeros((6, 4), np.int64)
+    quadrant = np.zeros((6, 4), np.int64)
+    block = np.zeros((6, 4), np.int64)
+    for d, (axis, sign) in enumerate(_DIRS):
+        ua, va = _UV[axis]
+        for e, (run, side, high) in enumerate(((ua, va, 1), (va, ua, 0), (ua, va, 0), (va, ua, 1))):
+            high_side = {axis: 1 if sign < 0 else 0, side: high}
+            a, b = _OTHER[run]
+            along[d, e] = run
+            quadrant[d, e] = high_side[a] + 2 * high_side[b]
+            block[d, e] = (high_side[a] << a) + (high_side[b] << b)
+    return along, quadrant, block
+
+
+_EDGE_ALONG, _EDGE_QUADRANT, _EDGE_BLOCK = _edge_tables()
 
 
 def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
@@ -334,37 +380,42 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     # Each rectangle edge: its line, the quadrant its faces' voxels are in, and its span.
     ef = corners.reshape(-1, 3)
     et = np.roll(corners, -1, axis=1).reshape(-1, 3)
-    ea = np.argmax(ef != et, axis=1)
+    ea = _EDGE_ALONG[r.direction].ravel()
     k = np.arange(len(ea))
     oa, ob = _OTHER[ea, 0], _OTHER[ea, 1]
-    rect = rep(np.arange(n), 4)
-    cell = _cell_near(r, rect, (ef + et) / 2.0)  # a face cell along the edge, inside the rect
-    quadrant = (cell[k, oa] - (ef[k, oa] - 1)) + 2 * (cell[k, ob] - (ef[k, ob] - 1))
+    quadrant = _EDGE_QUADRANT[r.direction].ravel()
     lo = 2 * np.minimum(ef[k, ea], et[k, ea])
     hi = 2 * np.maximum(ef[k, ea], et[k, ea])
-    # Points on lines (doubled coordinates): rectangle corners on their edges' lines; the
-    # diagonals' midpoints on their line and quadrant (only faces of that voxel take them).
+    # Points inserted into edges (doubled coordinates along the edge): the rectangle corners
+    # strictly inside an edge, on the line the edge runs along (a corner matters only on the
+    # lines its rectangle has an edge along: the faces that share a stretch of a line are the
+    # ones with an edge along it); the diagonals' midpoints on their line and quadrant (only
+    # faces of that voxel take them).
+    c_edge, c_along = _corners_inside(grid, ef, et, ea)
+    c_count = np.bincount(c_edge, minlength=len(ea))
     w = 2 * int(grid.dims.max()) + 4
     e_key = _line_key(ea, 2 * ef[k, oa], 2 * ef[k, ob], w)
-    # A corner matters only on the lines its rectangle has an edge along: the faces that share
-    # a stretch of a line are the ones with an edge along it.
-    ends = np.concatenate([e_key * w + 2 * ef[k, ea], e_key * w + 2 * et[k, ea]])
-    ends = np.unique(ends)
-    c_key, c_along = ends // w, ends % w
     m_key = _line_key(diag.line[:, 0], diag.line[:, 1], diag.line[:, 2], w)
     m_key = m_key * 4 + diag.line[:, 3]
-    c_first, c_count, c_order = _between(c_key, c_along, e_key, lo, hi, w)
-    m_first, m_count, m_order = _between(m_key, diag.along, e_key * 4 + quadrant, lo, hi, w)
+    # Only the edges on a line that holds a midpoint look for them (few lines do).
+    d_max = int(grid.dims.max())
+    line_id = (ea * d_max + ef[k, oa]) * d_max + ef[k, ob]
+    mid_line = (diag.line[:, 0] * d_max + diag.line[:, 1] // 2) * d_max + diag.line[:, 2] // 2
+    ask = np.flatnonzero(_CodeSet(mid_line, 3 * d_max * d_max).contains(line_id))
+    m_first = np.zeros(len(ea), np.int64)
+    m_count = np.zeros(len(ea), np.int64)
+    m_first[ask], m_count[ask], m_order = _between(
+        m_key, diag.along, e_key[ask] * 4 + quadrant[ask], lo[ask], hi[ask], w
+    )
     # The inserted points of each edge, in the order the edge runs.
     count = c_count + m_count
-    ins_edge = np.concatenate([rep(k, c_count), rep(k, m_count)])
-    c_at = c_order[_ranges(c_first, c_count)]
+    ins_edge = np.concatenate([c_edge, rep(k, m_count)])
     m_at = m_order[_ranges(m_first, m_count)]
-    ins_along = np.concatenate([c_along[c_at], diag.along[m_at]])
-    ins_mid = np.concatenate([np.full(len(c_at), -1, np.int64), m_at])
+    ins_along = np.concatenate([c_along, diag.along[m_at]])
+    ins_mid = np.concatenate([np.full(len(c_edge), -1, np.int64), m_at])
     ascending = et[k, ea] > ef[k, ea]
     key = np.where(ascending[ins_edge], ins_along, -ins_along)
-    o = np.lexsort((key, ins_edge))
+    o = _lex_order((key, ins_edge))
     ins_edge, ins_along, ins_mid = ins_edge[o], ins_along[o], ins_mid[o]
     inserted = count.reshape(n, 4)
     size = 4 + inserted.sum(axis=1)
@@ -388,10 +439,17 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     midpoint[ins] = ins_mid
     rect_of = edge_of // 4
     lattice = midpoint < 0
-    cells = np.zeros((total, 3), np.int64)
-    normal = np.zeros((total, 3), np.int64)
-    cells[lattice] = _cell_near(r, rect_of[lattice], points[lattice].astype(np.float64))
-    normal[lattice] = _normals(r.direction[rect_of[lattice]])
+    block = np.zeros(total, np.int64)
+    # A lattice point's face: its edge's face cell nearest to it, in the block around the point
+    # (the edge's quadrant, and along the edge on the point's high side unless at the far end).
+    e_lat = edge_of[lattice]
+    a_lat = ea[e_lat]
+    along = points[lattice][np.arange(len(e_lat)), a_lat]
+    below_end = along < hi[e_lat] // 2
+    occupied_at = _EDGE_BLOCK.ravel()[4 * r.direction[e_lat // 4] + e_lat % 4] + (
+        below_end << a_lat
+    )
+    block[lattice] = occupied_at * 9 + _NORMAL_STEP[r.direction[rect_of[lattice]]]
     start = np.cumsum(size) - size
     # Negative directions wind clockwise in (u, v): reverse each polygon, keeping its start.
     neg = np.array([s for _, s in _DIRS])[r.direction] < 0
@@ -400,7 +458,7 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
         rep(neg, size), rep(start, size) + (rep(size, size) - within) % rep(size, size),
         np.arange(total),
     )  # fmt: skip
-    points, midpoint, cells, normal = points[src], midpoint[src], cells[src], normal[src]
+    points, midpoint, block = points[src], midpoint[src], block[src]
     corner_pos = np.concatenate(
         [np.zeros((n, 1), np.int64), np.cumsum(per_edge.reshape(n, 4), axis=1)[:, :3]], axis=1
     )
@@ -409,7 +467,28 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     fan = np.where(has_free, fan_pos, -1)
     tri = np.where(has_free, size - 2, size)
     centre = (corners[:, 0] + corners[:, 2]) / 2.0
-    return _Polygons(start, size, points, midpoint, cells, normal, fan, centre, r.label, tri)
+    return _Polygons(start, size, points, midpoint, block, fan, centre, r.label, tri)
+
+
+def _corners_inside(
+    grid: _Lattice, ef: NDArray[np.int64], et: NDArray[np.int64], ea: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The rectangle corners strictly inside each edge (from ``ef`` to ``et``, along axis
+    ``ea``) on that edge's line: (edge, doubled coordinate along it), edges ascending and each
+    edge's points ascending. A corner is marked on the lines of its rectangle's two edges; each
+    edge then looks up the lattice points between its ends."""
+    strides = grid.strides
+    size = 3 * int(np.prod(grid.dims.astype(np.float64)))
+    marks = np.concatenate([grid.encode(ef) * 3 + ea, grid.encode(et) * 3 + ea])
+    marked = _CodeSet(marks, size)
+    rows = np.arange(len(ea))
+    lo = np.minimum(ef[rows, ea], et[rows, ea])
+    inside = np.maximum(ef[rows, ea], et[rows, ea]) - lo - 1
+    edge = np.repeat(rows, inside)
+    along = _ranges(lo + 1, inside)
+    base = (grid.encode(ef) - ef[rows, ea] * strides[ea]) * 3 + ea  # the line, at 0 along it
+    hit = marked.contains(base[edge] + along * (3 * strides[ea[edge]]))
+    return edge[hit], 2 * along[hit]
 
 
 def _line_key(
@@ -453,28 +532,9 @@ def _ranges(first: NDArray[np.int64], count: NDArray[np.int64]) -> NDArray[np.in
     return out
 
 
-def _cell_near(r: _Rects, rect: NDArray[np.int64], xyz: NDArray[np.float64]) -> NDArray[np.int64]:
-    """A face cell of rectangle ``rect`` touching the boundary point ``xyz`` (lattice units):
-    the voxel (shifted coordinates) whose face it is."""
-    d = r.direction[rect]
-    out = np.empty((len(rect), 3), np.int64)
-    for di, (axis, sign) in enumerate(_DIRS):
-        m = d == di
-        ua, va = _UV[axis]
-        rm = rect[m]
-        # The cell [c, c+1) nearest to the coordinate, within the rectangle.
-        out[m, ua] = np.clip(np.floor(xyz[m, ua]).astype(np.int64), r.u0[rm], r.u1[rm] - 1)
-        out[m, va] = np.clip(np.floor(xyz[m, va]).astype(np.int64), r.v0[rm], r.v1[rm] - 1)
-        out[m, axis] = r.layer[rm] - (1 if sign > 0 else 0)
-    return out
-
-
-def _normals(direction: NDArray[np.int64]) -> NDArray[np.int64]:
-    table = np.zeros((6, 3), np.int64)
-    for di, (axis, sign) in enumerate(_DIRS):
-        table[di, axis] = sign
-    out: NDArray[np.int64] = table[direction]
-    return out
+#: Per face direction, the step in the block index from a face's occupied voxel to its empty
+#: one (its outward normal, x + 2y + 4z).
+_NORMAL_STEP = np.array([sign * (1 << axis) for axis, sign in _DIRS], np.int64)
 
 
 def _triangles(
@@ -485,35 +545,40 @@ def _triangles(
     n_poly = len(p.size)
     lattice = p.midpoint < 0
     # Lattice points: one vertex per (point, sheet), the sheet from the 8 voxels around.
-    pts, cells = p.points[lattice], p.cells[lattice]
-    base = pts - 1  # the block's voxel (0, 0, 0)
-    pattern = np.zeros(len(base), np.int64)
+    # The 8 voxels around each distinct point (a point is in 4 to 6 polygons).
+    pts = p.points[lattice]
+    u_code, u_of = grid.unique(grid.encode(pts))
+    u_pts = grid.decode(u_code)
+    u_pattern = np.zeros(len(u_code), np.int64)
     for i in range(8):
-        off = np.array([i & 1, i >> 1 & 1, i >> 2 & 1])
-        pattern |= grid.occupied(base + off).astype(np.int64) << i
-    o_idx = _block_index(cells - base)
-    e_idx = _block_index(cells + p.normal[lattice] - base)
-    sheet = sheet_of[pattern, o_idx, e_idx].astype(np.int64)
+        off = np.array([i & 1, i >> 1 & 1, i >> 2 & 1]) - 1  # voxel (0, 0, 0) is at point - 1
+        u_pattern |= grid.occupied(u_pts + off).astype(np.int64) << i
+    pattern = u_pattern[u_of]
+    sheet = sheet_of.reshape(256, 64)[pattern, p.block[lattice]].astype(np.int64)
     if (sheet < 0).any():  # pragma: no cover - a face always separates occupied from empty
         raise AssertionError("a polygon point is not on the surface")
-    split = n_sheets[pattern] > 1
-    sheet = np.where(split, sheet, 0)
-    uniq, first, lid = np.unique(
-        grid.encode(pts) * 4 + sheet, return_index=True, return_inverse=True
-    )
-    moved = np.where(split[:, None], direction[pattern, sheet] * hair, 0.0)
+    sheet = np.where(n_sheets[pattern] > 1, sheet, 0)
+    # One vertex per (point, sheet) used, in that order.
+    key = u_of * 4 + sheet
+    used_key = np.zeros(4 * len(u_code), bool)
+    used_key[key] = True
+    n_lattice = int(used_key.sum())
+    lid = (np.cumsum(used_key) - 1)[key]
+    v_key = np.flatnonzero(used_key)
+    v_point, v_sheet = v_key // 4, v_key % 4
+    v_pattern = u_pattern[v_point]
+    split = (n_sheets[v_pattern] > 1)[:, None]
+    lattice_xyz = u_pts[v_point] + np.where(split, direction[v_pattern, v_sheet] * hair, 0.0)
     vid = np.empty(len(p.points), np.int64)
-    vid[lattice] = lid.reshape(-1)
+    vid[lattice] = lid
     # Midpoints of diagonal edges: the ones used, in their order.
     used, mid_id = np.unique(p.midpoint[~lattice], return_inverse=True)
-    vid[~lattice] = len(uniq) + mid_id.reshape(-1)
+    vid[~lattice] = n_lattice + mid_id.reshape(-1)
     # Polygon centres (fans from the centre).
     use_centre = p.fan < 0
     centre_vid = np.full(n_poly, -1, np.int64)
-    centre_vid[use_centre] = len(uniq) + len(used) + np.arange(int(use_centre.sum()))
-    vertices = np.concatenate(
-        [pts[first].astype(np.float64) + moved[first], diag.xyz[used], p.centre[use_centre]]
-    )
+    centre_vid[use_centre] = n_lattice + len(used) + np.arange(int(use_centre.sum()))
+    vertices = np.concatenate([lattice_xyz, diag.xyz[used], p.centre[use_centre]])
     # Triangles: fans from a corner (n - 2) or from the centre (n).
     tri_count = p.triangle_count
     poly_of_tri = np.repeat(np.arange(n_poly), tri_count)
