@@ -256,3 +256,85 @@ def test_bad_foxglove_mcap_one_line_exit_2_nothing_written(
     assert err.count("\n") == 1 and err.startswith(f"scan2terrain: error: {named}: "), err
     assert message in err
     assert list(outs.iterdir()) == []
+
+
+def elevation_grid(heights: np.ndarray, res: float, x0: float, y0: float, z0: float) -> Any:
+    """One foxglove.Grid message of FLOAT32 ``elevation`` cells (row 0 at the origin)."""
+    cols = heights.shape[1]
+    return {
+        "timestamp": {"sec": 1_700_000_000, "nsec": 0},
+        "frame_id": "map",
+        "pose": {
+            "position": {"x": x0, "y": y0, "z": z0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+        },
+        "column_count": cols,
+        "cell_size": {"x": res, "y": res},
+        "row_stride": 4 * cols,
+        "cell_stride": 4,
+        "fields": [{"name": "elevation", "offset": 0, "type": 7}],
+        "data": np.ascontiguousarray(heights, dtype="<f4").tobytes(),
+    }
+
+
+@pytest.mark.parametrize("encoding", ["protobuf", "json"])
+def test_foxglove_elevation_grid_becomes_terrain_at_its_heights(
+    tmp_path: Path, encoding: FoxgloveEncoding
+) -> None:
+    """A grid_map-style elevation layer: Gazebo's ground (gz-common's loader, the collision
+    placement gz-sim uses) is at the grid's heights at its cell centres, in the grid's frame."""
+    from scan2terrain.cli import COMMAND_DEFAULTS
+    from scan2terrain.commands.scans import bag2world
+    from scan2terrain.config import load_config
+    from tests.test_dem2world import ground
+
+    res, x0, y0, z0 = 0.25, 3.0, -2.0, 0.5
+    rows, cols = 48, 64
+    yy, xx = np.mgrid[0:rows, 0:cols] * res
+    heights = 1.0 + 0.5 * np.sin(xx / 2) + 0.3 * np.cos(yy / 3)
+    holes = heights.copy()
+    holes[:3, :4] = np.nan  # no height: sits at the lowest known one
+    messages = [("/elevation", "foxglove.Grid", 1_700_000_000_000_000_000,
+                 elevation_grid(holes, res, x0, y0, z0))]  # fmt: skip
+    mcap = write_foxglove_mcap(tmp_path / "grid.mcap", messages, encoding)
+    cfg = load_config(
+        None, {"world.simulator": "gz"}, defaults=COMMAND_DEFAULTS.get("bag2world", {})
+    )
+    result = bag2world([mcap], tmp_path / "w", cfg)
+    assert "height grid: 64 x 48 cells" in result.notes
+    x = x0 + (np.arange(cols) + 0.5) * res
+    y = y0 + (np.arange(rows) + 0.5) * res
+    gx, gy = np.meshgrid(x, y)
+    got = ground(result, tmp_path, gx, gy)
+    want = heights + z0
+    inner = np.ones_like(want, bool)
+    inner[:4, :5] = False  # next to the holes the ground bends down to them
+    span = float(want.max() - want.min())
+    err = np.abs(got - want)
+    # Gazebo's grid is the heights resampled to 2^n + 1 samples a side (bilinear): within a
+    # centimetre (0.6 % of the 1.6 m span) inside, a little more on the outermost cells.
+    assert err[inner].max() < 0.02 * span, err[inner].max()
+    inside = inner.copy()
+    inside[[0, -1], :] = inside[:, [0, -1]] = False
+    assert err[inside].max() < 0.01 * span and err[inside].mean() < 0.003 * span
+    assert got[0, 0] == pytest.approx(float(np.nanmin(holes)) + z0, abs=0.02 * span)
+
+
+def test_tilted_or_empty_elevation_grid_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    flat = np.zeros((4, 5))
+    tilted = elevation_grid(flat, 0.5, 0.0, 0.0, 0.0)
+    tilted["pose"]["orientation"] = {"x": 0.2, "y": 0.0, "z": 0.0, "w": 0.98}
+    empty = elevation_grid(np.full((4, 5), np.nan), 0.5, 0.0, 0.0, 0.0)
+    for name, value, problem in [
+        ("tilted", tilted, "a height grid must lie level"),
+        ("empty", empty, "holds no finite height"),
+    ]:
+        mcap = write_foxglove_mcap(
+            tmp_path / f"{name}.mcap", [("/e", "foxglove.Grid", 1000, value)], "json"
+        )
+        code, out, err = run(capsys, "bag2world", mcap, "-o", tmp_path / name)
+        assert code == 2 and out == "", err
+        assert err.count("\n") == 1 and f"{mcap}: /e: " in err and problem in err, err
+        assert not (tmp_path / name).exists()

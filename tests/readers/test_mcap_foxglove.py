@@ -216,6 +216,31 @@ def test_grid_layouts(tmp_path: Path, encoding: FoxgloveEncoding) -> None:
     assert data.tolist() == [[0, 100, -1], [50, 25, 0]]
 
 
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_elevation_grid_heights(tmp_path: Path, encoding: FoxgloveEncoding) -> None:
+    """A field named elevation (grid_map's layer) makes a height grid, of any numeric type,
+    beside colour channels, in padded rows; it is not an occupancy grid."""
+    cells = np.zeros(
+        (2, 4),  # 3 columns and a padding cell per row
+        dtype=np.dtype(
+            {"names": ["red", "elevation"], "formats": ["u1", "<i2"], "offsets": [0, 2],
+             "itemsize": 4}
+        ),
+    )  # fmt: skip
+    cells["elevation"] = [[-3, 0, 7, 99], [120, 5, -1, 99]]
+    value = grid_value(
+        cells.tobytes(),
+        [{"name": "red", "offset": 0, "type": 1}, {"name": "elevation", "offset": 2, "type": 4}],
+        row_stride=16,
+        cell_stride=4,
+    )
+    msg = one(tmp_path, "foxglove.Grid", value, encoding)
+    assert isinstance(msg, Grid) and msg.is_elevation
+    assert msg.heights.tolist() == [[-3, 0, 7], [120, 5, -1]]
+    with pytest.raises(ValueError, match="Grid has no occupancy field"):
+        _ = msg.data
+
+
 @pytest.mark.parametrize(
     ("change", "problem"),
     [

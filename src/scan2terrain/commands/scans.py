@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.commands.maps import occupancy_world
+from scan2terrain.commands.maps import height_world, occupancy_world
 from scan2terrain.commands.voxels import voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
@@ -82,7 +82,13 @@ def bag2world(
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
     from scan2terrain.octree.bt import bt_bytes
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.scans import map_message, occupancy_from_message, plan_bag
+    from scan2terrain.readers.scans import (
+        height_grid_from_message,
+        is_height_grid,
+        map_message,
+        occupancy_from_message,
+        plan_bag,
+    )
 
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
@@ -98,6 +104,15 @@ def bag2world(
         plan = plan_bag(bag, cfg.scans)
         if plan.map_topic is not None:
             msg, _ = map_message(bag, plan, cfg.scans.map_message)
+            if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
+                try:
+                    heights = height_grid_from_message(msg)
+                except ValueError as exc:
+                    raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
+                result = height_world(heights, bag.path, out, cfg, overwrite=overwrite)
+                rows, cols = heights.shape
+                result.notes[:0] = [*plan.reasons, f"height grid: {cols} x {rows} cells"]
+                return result
             try:
                 data, res, (x, y, yaw) = occupancy_from_message(msg)
                 grid = OccupancyGrid(data, res, Pose2D(x, y, yaw))

@@ -44,8 +44,11 @@ readers downstream (:mod:`~scan2terrain.readers.scans`, :mod:`~scan2terrain.read
     row 0 at the pose's origin (as nav_msgs). The occupancy is the field named ``occupancy``
     (else ``data``, else the only field that is not a colour channel): INT8 / UINT8 values as
     nav_msgs' (0-100 occupied probability, -1 / 255 unknown), FLOAT32 / FLOAT64 as a
-    probability in [0, 1] (x 100, rounded; NaN unknown). Other layouts are refused when the map
-    is read (an elevation grid is not an occupancy grid).
+    probability in [0, 1] (x 100, rounded; NaN unknown). A grid with a field named
+    ``elevation``, ``height`` or ``z`` (grid_map's layer names) and none named ``occupancy`` or
+    ``data`` is a **height grid** instead: any numeric type, metres above the pose's z, NaN or
+    inf no height; bag2world makes terrain of it as of a DEM (:attr:`Grid.heights`). The pose
+    must be level (a yaw only). Other layouts are refused when the map is read.
 """
 
 from __future__ import annotations
@@ -76,7 +79,7 @@ USES = {
     FRAME_TRANSFORM: "read as tf",
     FRAME_TRANSFORMS: "read as tf",
     POSE_IN_FRAME: "read as odometry",
-    GRID: "read as an occupancy grid",
+    GRID: "read as an occupancy grid, or a height grid (an elevation field)",
 }
 
 #: foxglove.PackedElementField.NumericType -> numpy type (little-endian).
@@ -93,6 +96,9 @@ NUMERIC_TYPES: dict[int, str] = {
 _TYPE_NAMES = {1: "UINT8", 2: "INT8", 3: "UINT16", 4: "INT16", 5: "UINT32", 6: "INT32"}
 _TYPE_NAMES |= {7: "FLOAT32", 8: "FLOAT64"}
 _COLOURS = frozenset({"red", "green", "blue", "alpha"})
+_OCCUPANCY_NAMES = ("occupancy", "data")
+#: The fields a height grid is read from, in this order (grid_map's layer is ``elevation``).
+ELEVATION_NAMES = ("elevation", "height", "z")
 _NS = 1_000_000_000
 
 
@@ -320,6 +326,13 @@ class Grid:
     raw: bytes = field(repr=False)
 
     @property
+    def is_elevation(self) -> bool:
+        """Whether the grid holds heights: a field named ``elevation``, ``height`` or ``z`` and
+        none named ``occupancy`` or ``data``."""
+        names = {f.name for f in self.fields}
+        return not names & set(_OCCUPANCY_NAMES) and bool(names & set(ELEVATION_NAMES))
+
+    @property
     def data(self) -> NDArray[np.int8]:
         """Occupancy values as nav_msgs has them (see the module docstring).
 
@@ -328,10 +341,49 @@ class Grid:
         ValueError
             Cells that are not square, a layout that does not fit, or no occupancy field.
         """
+        chosen = self._occupancy_field()
+        values = self._cells(chosen)
+        kind = np.dtype(NUMERIC_TYPES[chosen.type])
+        if kind.kind == "f":
+            with np.errstate(invalid="ignore"):
+                p = values.astype(np.float64)
+                if np.any(np.isfinite(p) & ((p < 0) | (p > 1))):
+                    raise ValueError(
+                        f"Grid field {chosen.name!r} ({_TYPE_NAMES[chosen.type]}) holds values "
+                        "outside [0, 1]; float cells are read as occupancy probabilities "
+                        f"(name the field one of {', '.join(ELEVATION_NAMES)} for heights)"
+                    )
+                return np.where(np.isfinite(p), np.rint(p * 100), -1).astype(np.int8)
+        if kind.itemsize != 1:
+            raise ValueError(
+                f"Grid field {chosen.name!r} is {_TYPE_NAMES[chosen.type]}; occupancy is read "
+                "from INT8, UINT8, FLOAT32 or FLOAT64 cells"
+            )
+        out: NDArray[np.int8] = np.array(values).view(np.int8)  # a copy: 255 -> -1
+        return out
+
+    @property
+    def heights(self) -> NDArray[np.float64]:
+        """The elevation field's values (metres above the grid's pose; NaN or inf: no height),
+        row 0 at the origin.
+
+        Raises
+        ------
+        ValueError
+            Cells that are not square, a layout that does not fit, or no elevation field.
+        """
+        by_name = {f.name: f for f in self.fields}
+        names = [n for n in ELEVATION_NAMES if n in by_name]
+        if not names:
+            raise ValueError(f"Grid has no field named {', '.join(ELEVATION_NAMES)}")
+        out: NDArray[np.float64] = self._cells(by_name[names[0]]).astype(np.float64)
+        return out
+
+    def _cells(self, chosen: PackedField) -> NDArray[np.generic]:
+        """The field's values as an (H, W) strided view of the bytes, the layout checked."""
         sx, sy = self.cell_size
         if sx != sy:
             raise ValueError(f"Grid cells are {sx} x {sy} m; only square cells are read")
-        chosen = self._occupancy_field()
         w, h = self.info.width, self.info.height
         if w <= 0 or self.row_stride <= 0 or self.cell_stride <= 0:
             raise ValueError(
@@ -346,32 +398,16 @@ class Grid:
         cells = np.ndarray(  # a strided view of the bytes: rows row_stride apart
             shape=(h, w), dtype=dtype, buffer=self.raw, strides=(self.row_stride, self.cell_stride)
         )
-        values = cells[chosen.name]
-        kind = np.dtype(NUMERIC_TYPES[chosen.type])
-        if kind.kind == "f":
-            with np.errstate(invalid="ignore"):
-                p = values.astype(np.float64)
-                if np.any(np.isfinite(p) & ((p < 0) | (p > 1))):
-                    raise ValueError(
-                        f"Grid field {chosen.name!r} ({_TYPE_NAMES[chosen.type]}) holds values "
-                        "outside [0, 1]; float cells are read as occupancy probabilities"
-                    )
-                return np.where(np.isfinite(p), np.rint(p * 100), -1).astype(np.int8)
-        if kind.itemsize != 1:
-            raise ValueError(
-                f"Grid field {chosen.name!r} is {_TYPE_NAMES[chosen.type]}; occupancy is read "
-                "from INT8, UINT8, FLOAT32 or FLOAT64 cells"
-            )
-        out: NDArray[np.int8] = np.array(values).view(np.int8)  # a copy: 255 -> -1
-        return out
+        values: NDArray[np.generic] = cells[chosen.name]
+        return values
 
     def _occupancy_field(self) -> PackedField:
         by_name = {f.name: f for f in self.fields}
-        for name in ("occupancy", "data"):
+        for name in _OCCUPANCY_NAMES:
             if name in by_name:
                 return by_name[name]
         others = [f for f in self.fields if f.name not in _COLOURS]
-        if len(others) == 1:
+        if len(others) == 1 and others[0].name not in ELEVATION_NAMES:
             return others[0]
         listed = ", ".join(f.name for f in self.fields) or "none"
         raise ValueError(

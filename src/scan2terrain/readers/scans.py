@@ -49,6 +49,7 @@ from scan2terrain.readers.bag import (
     resolve_time,
 )
 from scan2terrain.readers.bag import SCAN_TYPES as _SCAN_TYPES
+from scan2terrain.readers.foxglove import Grid as FoxgloveGrid
 from scan2terrain.readers.foxglove import LaserScan as FoxgloveLaserScan
 from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
@@ -57,7 +58,7 @@ from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import mount
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
-from scan2terrain.types import Pose2D, Scan, Transform, normalise_frame
+from scan2terrain.types import HeightGrid, Pose2D, Scan, Transform, normalise_frame
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
@@ -432,3 +433,42 @@ def occupancy_from_message(msg: Any) -> tuple[NDArray[np.int8], float, tuple[flo
     if problem:
         raise ValueError(problem)
     return data.reshape(h, w), float(info.resolution), origin
+
+
+def is_height_grid(msg: Any) -> bool:
+    """Whether a map message holds heights (a ``foxglove.Grid`` with an elevation field)."""
+    return isinstance(msg, FoxgloveGrid) and msg.is_elevation
+
+
+def height_grid_from_message(msg: FoxgloveGrid) -> HeightGrid:
+    """A ``foxglove.Grid`` elevation field to a height grid: z = the pose's z + the value,
+    cells without a finite value unknown; the pose must be level (a yaw only).
+
+    Raises
+    ------
+    ValueError
+        A tilted pose, no finite height, a bad layout, or an extent out of range.
+    """
+    q = msg.info.origin.orientation
+    norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
+    if norm == 0 or not math.isfinite(norm):
+        raise ValueError(f"Grid pose orientation ({q.x}, {q.y}, {q.z}, {q.w}) is not a rotation")
+    if math.hypot(q.x, q.y) / norm > 1e-6:
+        raise ValueError(
+            "Grid pose is tilted (roll or pitch); a height grid must lie level (a yaw only)"
+        )
+    values = msg.heights
+    known = np.isfinite(values)
+    if not known.any():
+        raise ValueError("Grid elevation field holds no finite height")
+    p = msg.info.origin.position
+    if not all(math.isfinite(v) for v in (p.x, p.y, p.z)):
+        raise ValueError(f"Grid pose position ({p.x}, {p.y}, {p.z}) is not finite")
+    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    origin = Pose2D(float(p.x), float(p.y), yaw)
+    resolution = float(msg.info.resolution)
+    problem = extent_problem(values.shape, resolution, origin)
+    if problem:
+        raise ValueError(problem)
+    heights = np.where(known, values + float(p.z), 0.0).astype(np.float32)
+    return HeightGrid(heights, known, resolution, origin)
