@@ -7,7 +7,7 @@ from __future__ import annotations
 import base64
 import binascii
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -42,58 +42,59 @@ from scan2terrain.readers.foxglove import (
 
 
 class _Fields:
-    """A parsed message's fields, protobuf or JSON: ``sub`` a nested message or None when it is
-    absent, ``get`` a scalar or its default."""
+    """A parsed JSON message's fields, checked as they are read: ``sub`` a nested message or
+    None when it is absent, ``get`` a scalar or its default. :class:`_ProtoFields` reads a
+    protobuf message the same way (its types are already checked by protobuf)."""
 
-    def __init__(self, msg: Any, what: str) -> None:
+    json = True
+
+    def __init__(self, msg: Any, what: str | Callable[[], str]) -> None:
         self.msg = msg
-        self.what = what
-        self.json = isinstance(msg, dict)
+        self._what = what
+
+    @property
+    def what(self) -> str:
+        """The field's name in the message, for errors (built when first asked for)."""
+        return self._what if isinstance(self._what, str) else self._what()
 
     def sub(self, name: str) -> _Fields | None:
-        if self.json:
-            value = self.msg.get(name)
-            if value is None:
-                return None
-            if not isinstance(value, dict):
-                raise ValueError(f"{self.what}.{name} is not an object")
-            return _Fields(value, f"{self.what}.{name}")
-        if not self.msg.HasField(name):
+        value = self.msg.get(name)
+        if value is None:
             return None
-        return _Fields(getattr(self.msg, name), f"{self.what}.{name}")
+        if not isinstance(value, dict):
+            raise ValueError(f"{self.what}.{name} is not an object")
+        return _Fields(value, f"{self.what}.{name}")
 
     def items(self, name: str) -> list[_Fields]:
-        values = (self.msg.get(name) or []) if self.json else getattr(self.msg, name)
-        if not isinstance(values, Iterable) or isinstance(values, (str, dict)):
+        values = self.msg.get(name) or []
+        if not isinstance(values, list):
             raise ValueError(f"{self.what}.{name} is not a list")
         out = []
         for i, v in enumerate(values):
-            if self.json and not isinstance(v, dict):
+            if not isinstance(v, dict):
                 raise ValueError(f"{self.what}.{name}[{i}] is not an object")
             out.append(_Fields(v, f"{self.what}.{name}[{i}]"))
         return out
 
     def number(self, name: str, default: float = 0.0) -> float:
-        value = self.msg.get(name, default) if self.json else getattr(self.msg, name)
+        value = self.msg.get(name, default)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{self.what}.{name} is not a number")
         return float(value)
 
     def integer(self, name: str) -> int:
-        value = self.msg.get(name, 0) if self.json else getattr(self.msg, name)
+        value = self.msg.get(name, 0)
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{self.what}.{name} is not an integer")
         return value
 
     def text(self, name: str) -> str:
-        value = self.msg.get(name, "") if self.json else getattr(self.msg, name)
+        value = self.msg.get(name, "")
         if not isinstance(value, str):
             raise ValueError(f"{self.what}.{name} is not a string")
         return value
 
     def blob(self, name: str) -> bytes:
-        if not self.json:
-            return bytes(getattr(self.msg, name))
         value = self.msg.get(name, "")
         if not isinstance(value, str):
             raise ValueError(f"{self.what}.{name} is not a base64 string")
@@ -103,14 +104,48 @@ class _Fields:
             raise ValueError(f"{self.what}.{name} is not valid base64 ({exc})") from None
 
     def floats(self, name: str) -> NDArray[np.float64]:
-        if not self.json:
-            return np.asarray(getattr(self.msg, name), dtype=np.float64)
         values = self.msg.get(name) or []
         if not isinstance(values, list) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
         ):
             raise ValueError(f"{self.what}.{name} is not a list of numbers")
         return np.asarray(values, dtype=np.float64)
+
+
+class _ProtoFields(_Fields):
+    """A parsed protobuf message's fields, read as :class:`_Fields` reads JSON: protobuf has
+    checked their types, so nothing is checked again (the message name is only built for an
+    error)."""
+
+    json = False
+
+    def sub(self, name: str) -> _Fields | None:
+        if not self.msg.HasField(name):
+            return None
+        return _ProtoFields(getattr(self.msg, name), lambda: f"{self.what}.{name}")
+
+    def items(self, name: str) -> list[_Fields]:
+        return [
+            _ProtoFields(v, lambda i=i: f"{self.what}.{name}[{i}]")  # type: ignore[misc]
+            for i, v in enumerate(getattr(self.msg, name))
+        ]
+
+    def number(self, name: str, default: float = 0.0) -> float:
+        return float(getattr(self.msg, name))
+
+    def integer(self, name: str) -> int:
+        value: int = getattr(self.msg, name)
+        return value
+
+    def text(self, name: str) -> str:
+        value: str = getattr(self.msg, name)
+        return value
+
+    def blob(self, name: str) -> bytes:
+        return bytes(getattr(self.msg, name))
+
+    def floats(self, name: str) -> NDArray[np.float64]:
+        return np.asarray(getattr(self.msg, name), dtype=np.float64)
 
 
 def _time(m: _Fields) -> Time:
@@ -215,12 +250,45 @@ ADAPTERS: dict[str, Callable[[_Fields], object]] = {
 }
 
 
-def _adapted(name: str, parse: Callable[[bytes], Any]) -> Callable[[bytes | memoryview], object]:
-    adapt = ADAPTERS.get(name)
+def _proto_transform(t: Any, index: int | None = None) -> TransformStamped:
+    """A protobuf ``foxglove.FrameTransform`` as :func:`_frame_transform` reads it, without the
+    field wrappers: transforms are most of a recording's messages. An absent timestamp or
+    translation reads as zeros and an absent rotation as the identity, as there."""
+    ts = t.timestamp
+    sec, nsec = ts.seconds, ts.nanos
+    if sec < 0 or not 0 <= nsec < _NS:
+        what = FRAME_TRANSFORM if index is None else f"{FRAME_TRANSFORMS}.transforms[{index}]"
+        raise ValueError(f"{what}.timestamp ({sec} s, {nsec} ns) is not a time")
+    v = t.translation
+    q = Quaternion()
+    if t.HasField("rotation"):
+        r = t.rotation
+        q = Quaternion(float(r.x), float(r.y), float(r.z), float(r.w))
+    return TransformStamped(
+        Header(Time(sec, nsec), t.parent_frame_id),
+        t.child_frame_id,
+        TfTransform(Vector3(float(v.x), float(v.y), float(v.z)), q),
+    )
+
+
+#: :data:`ADAPTERS` for protobuf messages: the transforms read directly.
+PROTO_ADAPTERS: dict[str, Callable[[_Fields], object]] = {
+    **ADAPTERS,
+    FRAME_TRANSFORM: lambda m: Transforms([_proto_transform(m.msg)]),
+    FRAME_TRANSFORMS: lambda m: Transforms(
+        [_proto_transform(t, i) for i, t in enumerate(m.msg.transforms)]
+    ),
+}
+
+
+def _adapted(
+    name: str, parse: Callable[[bytes | memoryview], Any], fields: type[_Fields]
+) -> Callable[[bytes | memoryview], object]:
+    adapt = (PROTO_ADAPTERS if fields is _ProtoFields else ADAPTERS).get(name)
 
     def decode(raw: bytes | memoryview) -> object:
-        msg = parse(bytes(raw))
-        return msg if adapt is None else adapt(_Fields(msg, name))
+        msg = parse(raw)
+        return msg if adapt is None else adapt(fields(msg, name))
 
     return decode
 
@@ -268,7 +336,7 @@ def protobuf_decoder(name: str, schema: bytes) -> Callable[[bytes | memoryview],
         cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
     except KeyError:
         raise ValueError(f"its FileDescriptorSet does not define {name}") from None
-    return _adapted(name, cls.FromString)
+    return _adapted(name, cls.FromString, _ProtoFields)  # parses a memoryview as it is
 
 
 def _json_object(raw: bytes) -> dict[str, Any]:
@@ -291,4 +359,4 @@ def json_decoder(name: str, schema: bytes) -> Callable[[bytes | memoryview], obj
             json.loads(schema)
         except ValueError as exc:
             raise ValueError(f"its JSON schema is not JSON ({exc})") from None
-    return _adapted(name, _json_object)
+    return _adapted(name, lambda raw: _json_object(bytes(raw)), _Fields)

@@ -45,10 +45,13 @@ from __future__ import annotations
 
 import heapq
 import io
+import itertools
+import os
 import struct
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -503,42 +506,59 @@ class McapFile:
                 and (b.channels is None or b.channels & rank.keys())
             ):
                 heap.append((b.start_ns, -1, b.offset, n))
+        # The blocks leave the heap in (start time, offset) order, whatever the messages do: a
+        # thread loads the next one (file read, decompression and CRC, which release the GIL)
+        # while the messages of this one are used. A block's messages come only after its
+        # checks, as without the thread.
+        after = dict(itertools.pairwise(n for *_, n in sorted(heap)))
         heapq.heapify(heap)
         pending: dict[tuple[int, int], tuple[int, memoryview]] = {}
         by_id = self._by_id
-        while heap:
-            t_ns, r, offset, n = heapq.heappop(heap)
-            if r < 0:
-                for k, (cid, t, raw) in enumerate(self._block(blocks[n])):
-                    if cid in rank and lo <= t < hi:
-                        pending[offset, k] = (cid, raw)
-                        heapq.heappush(heap, (t, rank[cid], offset, k))
-                continue
-            cid, raw = pending.pop((offset, n))
-            yield by_id[cid], t_ns, raw
+        with ThreadPoolExecutor(max_workers=1) as loader:
+            loading: dict[int, Future[memoryview]] = {}
+            while heap:
+                t_ns, r, offset, n = heapq.heappop(heap)
+                if r < 0:
+                    load = loading.pop(n, None) or loader.submit(self._load, blocks[n])
+                    if (ahead := after.get(n)) is not None:
+                        loading[ahead] = loader.submit(self._load, blocks[ahead])
+                    data = load.result()
+                    for k, (cid, t, raw) in enumerate(_messages(data)):
+                        if cid in rank and lo <= t < hi:
+                            pending[offset, k] = (cid, raw)
+                            heapq.heappush(heap, (t, rank[cid], offset, k))
+                    continue
+                cid, raw = pending.pop((offset, n))
+                yield by_id[cid], t_ns, raw
+            for load in loading.values():
+                load.cancel()
 
-    def _block(self, block: _Block) -> Iterator[tuple[int, int, memoryview]]:
-        """``(channel id, log time, payload)`` of each message of a block, in file order."""
-        f = self._f
-        if block.chunk:
-            f.seek(block.offset)
-            opcode, length = _OPLEN.unpack(f.read(9))
-            if opcode != Opcode.CHUNK or block.offset + 9 + length != block.end:
-                raise _Damaged("a chunk index points at something else than its chunk")
-            data = _chunk_bytes(_read_chunk(f.read(length)))
-        else:
-            f.seek(block.offset)
-            data = memoryview(f.read(block.end - block.offset))
-            if len(data) != block.end - block.offset:
-                raise _Damaged("the file changed while it was read")
-        # Views, not copies: rosbags' deserialisers take them (a message's arrays then view
-        # its chunk's bytes, as they view a .bag's message bytes).
-        for op, body, end, t_ns in _split(data):
-            if t_ns >= 0:
-                yield op >> 8, t_ns, data[body:end]
+    def _load(self, block: _Block) -> memoryview:
+        """A block's records: its chunk read, decompressed and checked, or its bytes. One
+        ``pread`` per block (no seek, one release of the GIL: the loader thread then does not
+        wait for the interpreter between small reads)."""
+        size = block.end - block.offset
+        data = memoryview(os.pread(self._f.fileno(), size, block.offset))
+        if len(data) != size:
+            raise _Damaged("the file changed while it was read")
+        if not block.chunk:
+            return data
+        opcode, length = _OPLEN.unpack_from(data)
+        if opcode != Opcode.CHUNK or 9 + length != size:
+            raise _Damaged("a chunk index points at something else than its chunk")
+        return _chunk_bytes(_read_chunk(data[9:]))
 
     def close(self) -> None:
         self._f.close()
+
+
+def _messages(data: memoryview) -> Iterator[tuple[int, int, memoryview]]:
+    """``(channel id, log time, payload)`` of each message of a block's records, in file order.
+    Views, not copies: rosbags' deserialisers take them (a message's arrays then view its
+    chunk's bytes, as they view a .bag's message bytes)."""
+    for op, body, end, t_ns in _split(data):
+        if t_ns >= 0:
+            yield op >> 8, t_ns, data[body:end]
 
 
 def mcap_profile(path: Path) -> str | None:

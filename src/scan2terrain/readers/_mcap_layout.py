@@ -6,12 +6,12 @@ from __future__ import annotations
 import io
 import struct
 import sys
-import zlib
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import IO
 
+from isal.isal_zlib import crc32  # the CRC-32 of zlib, 4-5x faster (chunk checks)
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
@@ -114,7 +114,7 @@ def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, in
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 
 
-def _read_chunk(body: bytes) -> Chunk:
+def _read_chunk(body: bytes | memoryview) -> Chunk:
     """mcap's :class:`~mcap.records.Chunk` of a chunk record's body, its ``data`` a view into
     ``body`` (``Chunk.read`` copies the data once more: a third of the read time here)."""
     if len(body) < _CHUNK_HEAD.size:
@@ -167,7 +167,7 @@ def _chunk_bytes(chunk: Chunk) -> memoryview:
         raise _Damaged(f"a {kind} chunk cannot be decompressed ({_one_line(str(exc))})") from exc
     if len(data) != size:
         raise _Damaged(f"a chunk holds {len(data):,} bytes, not the {size:,} it states")
-    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+    if chunk.uncompressed_crc and crc32(data) != chunk.uncompressed_crc:
         raise _Damaged("a chunk fails its CRC check (corrupt data)")
     return memoryview(data)
 
