@@ -192,3 +192,43 @@ def test_ros2_profile_keeps_the_rosbags_path() -> None:
     assert mcap_profile(single) == "ros2"
     with open_bag(single) as bag:
         assert bag.container.describe() == "MCAP, profile 'ros2', read with rosbags"
+
+
+@pytest.mark.parametrize("chunk_size", [40, 1 << 20])
+def test_messages_merge_in_time_then_connection_then_file_order(
+    tmp_path: Path, chunk_size: int
+) -> None:
+    """Messages written out of time order, in overlapping chunks or in order, with equal times
+    on two channels: read in log-time order, ties in the order the connections are asked for,
+    then in file order, whichever way (merged or in a block's own order) they are read."""
+    times = [50, 10, 10, 30, 30, 20, 60, 60, 40, 70, 80, 80, 90]
+    path = tmp_path / "order.mcap"
+    with path.open("wb") as f:
+        w = McapWriter(f, compression=CompressionType.NONE, chunk_size=chunk_size)
+        w.start(profile="ros1", library="test")
+        sid = w.register_schema("std_msgs/Int32", "ros1msg", b"int32 data\n")
+        a = w.register_channel("/a", "ros1", sid)
+        b = w.register_channel("/b", "ros1", sid)
+        for n, t in enumerate(times):
+            w.add_message(b if n % 3 else a, t, struct.pack("<i", n), t)
+        for n, t in enumerate(sorted(times), start=len(times)):  # a second pass, in order
+            w.add_message(a if n % 2 else b, t + 100, struct.pack("<i", n), t + 100)
+        w.finish()  # type: ignore[no-untyped-call]
+    reader = McapFile(path)
+    try:
+        by_topic = {c.topic: c for c in reader.connections}
+        for asked in (["/a", "/b"], ["/b", "/a"]):
+            conns = [by_topic[t] for t in asked]
+            got = [
+                (t, c.topic, struct.unpack("<i", bytes(raw))[0])
+                for c, t, raw in reader.messages(conns)
+            ]
+            written = [(t, "/b" if n % 3 else "/a", n) for n, t in enumerate(times)]
+            written += [
+                (t + 100, "/a" if n % 2 else "/b", n)
+                for n, t in enumerate(sorted(times), start=len(times))
+            ]
+            want = sorted(written, key=lambda m: (m[0], asked.index(m[1]), m[2]))
+            assert got == want
+    finally:
+        reader.close()

@@ -523,10 +523,19 @@ class McapFile:
                     if (ahead := after.get(n)) is not None:
                         loading[ahead] = loader.submit(self._load, blocks[ahead])
                     data = load.result()
-                    for k, (cid, t, raw) in enumerate(_messages(data)):
-                        if cid in rank and lo <= t < hi:
-                            pending[offset, k] = (cid, raw)
-                            heapq.heappush(heap, (t, rank[cid], offset, k))
+                    wanted = [m for m in _messages(data) if m[0] in rank and lo <= m[1] < hi]
+                    if (
+                        wanted
+                        and (not heap or wanted[-1][1] < heap[0][0])
+                        and _in_order(wanted, rank)
+                    ):
+                        # Before anything else in the heap and in order already: as they are.
+                        for cid, t, raw in wanted:
+                            yield by_id[cid], t, raw
+                        continue
+                    for k, (cid, t, raw) in enumerate(wanted):
+                        pending[offset, k] = (cid, raw)
+                        heapq.heappush(heap, (t, rank[cid], offset, k))
                     continue
                 cid, raw = pending.pop((offset, n))
                 yield by_id[cid], t_ns, raw
@@ -550,6 +559,13 @@ class McapFile:
 
     def close(self) -> None:
         self._f.close()
+
+
+def _in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int]) -> bool:
+    """Whether the messages, in file order, are in the merge's order already: log time, then the
+    rank of their connection (file order breaks the remaining ties)."""
+    keys = [(t, rank[cid]) for cid, t, _ in messages]
+    return all(a <= b for a, b in itertools.pairwise(keys))
 
 
 def _messages(data: memoryview) -> Iterator[tuple[int, int, memoryview]]:
