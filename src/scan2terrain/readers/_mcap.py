@@ -81,7 +81,9 @@ from scan2terrain.readers._mcap_layout import (
     _Block,
     _chunk_bytes,
     _Damaged,
+    _in_order,
     _Layout,
+    _messages,
     _parse,
     _read_chunk,
     _records,
@@ -559,22 +561,6 @@ class McapFile:
 
     def close(self) -> None:
         self._f.close()
-
-
-def _in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int]) -> bool:
-    """Whether the messages, in file order, are in the merge's order already: log time, then the
-    rank of their connection (file order breaks the remaining ties)."""
-    keys = [(t, rank[cid]) for cid, t, _ in messages]
-    return all(a <= b for a, b in itertools.pairwise(keys))
-
-
-def _messages(data: memoryview) -> Iterator[tuple[int, int, memoryview]]:
-    """``(channel id, log time, payload)`` of each message of a block's records, in file order.
-    Views, not copies: rosbags' deserialisers take them (a message's arrays then view its
-    chunk's bytes, as they view a .bag's message bytes)."""
-    for op, body, end, t_ns in _split(data):
-        if t_ns >= 0:
-            yield op >> 8, t_ns, data[body:end]
 
 
 def mcap_profile(path: Path) -> str | None:

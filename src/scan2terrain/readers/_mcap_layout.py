@@ -4,6 +4,7 @@ decompression) and the messages inside them, for :class:`scan2terrain.readers._m
 from __future__ import annotations
 
 import io
+import itertools
 import struct
 import sys
 from collections import defaultdict
@@ -194,3 +195,19 @@ def _split(data: bytes | memoryview) -> Iterator[tuple[int, int, int, int]]:
         else:
             yield opcode, body, end, -1
         pos = end
+
+
+def _in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int]) -> bool:
+    """Whether the messages, in file order, are in the merge's order already: log time, then the
+    rank of their connection (file order breaks the remaining ties)."""
+    keys = [(t, rank[cid]) for cid, t, _ in messages]
+    return all(a <= b for a, b in itertools.pairwise(keys))
+
+
+def _messages(data: memoryview) -> Iterator[tuple[int, int, memoryview]]:
+    """``(channel id, log time, payload)`` of each message of a block's records, in file order.
+    Views, not copies: rosbags' deserialisers take them (a message's arrays then view its
+    chunk's bytes, as they view a .bag's message bytes)."""
+    for op, body, end, t_ns in _split(data):
+        if t_ns >= 0:
+            yield op >> 8, t_ns, data[body:end]
