@@ -5,6 +5,7 @@ command-level twins are in tests/test_bag2world_foxglove.py."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -265,3 +266,37 @@ def test_grids_that_are_not_occupancy_are_refused(
     msg = one(tmp_path, "foxglove.Grid", value, "json")
     with pytest.raises(ValueError, match=problem):
         occupancy_from_message(msg)
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+@pytest.mark.parametrize(
+    ("name", "value", "where"),
+    [
+        ("foxglove.PointCloud", {"frame_id": "l", "point_stride": 12}, "foxglove.PointCloud"),
+        (
+            "foxglove.FrameTransform",
+            {"parent_frame_id": "a", "child_frame_id": "b"},
+            "foxglove.FrameTransform",
+        ),
+        (
+            "foxglove.FrameTransforms",
+            {"transforms": "two, the second bad"},
+            "foxglove.FrameTransforms.transforms[1]",
+        ),
+    ],
+)
+def test_a_timestamp_that_is_not_a_time_is_refused(
+    tmp_path: Path, encoding: FoxgloveEncoding, name: str, value: dict[str, Any], where: str
+) -> None:
+    from scan2terrain.errors import InputError
+
+    bad = {"sec": 1, "nsec": 2_000_000_000}
+    if name == "foxglove.FrameTransforms":
+        good = {"timestamp": STAMP, "parent_frame_id": "a", "child_frame_id": "b"}
+        value = {"transforms": [good, good | {"timestamp": bad}]}
+    else:
+        value = value | {"timestamp": bad}
+    with pytest.raises(
+        InputError, match=re.escape(f"{where}.timestamp (1 s, 2000000000 ns) is not")
+    ):
+        one(tmp_path, name, value, encoding)

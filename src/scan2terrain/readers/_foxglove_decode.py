@@ -250,22 +250,41 @@ ADAPTERS: dict[str, Callable[[_Fields], object]] = {
 }
 
 
+def _proto_time(ts: Any, what: Callable[[], str]) -> Time:
+    sec, nsec = ts.seconds, ts.nanos
+    if sec < 0 or not 0 <= nsec < _NS:
+        raise ValueError(f"{what()}.timestamp ({sec} s, {nsec} ns) is not a time")
+    return Time(sec, nsec)
+
+
+def _proto_point_cloud(m: _Fields) -> PointCloud:
+    """A protobuf ``foxglove.PointCloud`` as :func:`_point_cloud` reads it, without the field
+    wrappers (a cloud message per scan)."""
+    msg = m.msg
+    return PointCloud(
+        Header(_proto_time(msg.timestamp, lambda: POINT_CLOUD), msg.frame_id),
+        _pose(m.sub("pose")).transform(),
+        msg.point_stride,
+        [PackedField(f.name, f.offset, f.type) for f in msg.fields],
+        msg.data,
+    )
+
+
 def _proto_transform(t: Any, index: int | None = None) -> TransformStamped:
     """A protobuf ``foxglove.FrameTransform`` as :func:`_frame_transform` reads it, without the
     field wrappers: transforms are most of a recording's messages. An absent timestamp or
     translation reads as zeros and an absent rotation as the identity, as there."""
-    ts = t.timestamp
-    sec, nsec = ts.seconds, ts.nanos
-    if sec < 0 or not 0 <= nsec < _NS:
-        what = FRAME_TRANSFORM if index is None else f"{FRAME_TRANSFORMS}.transforms[{index}]"
-        raise ValueError(f"{what}.timestamp ({sec} s, {nsec} ns) is not a time")
+    stamp = _proto_time(
+        t.timestamp,
+        lambda: FRAME_TRANSFORM if index is None else f"{FRAME_TRANSFORMS}.transforms[{index}]",
+    )
     v = t.translation
     q = Quaternion()
     if t.HasField("rotation"):
         r = t.rotation
         q = Quaternion(float(r.x), float(r.y), float(r.z), float(r.w))
     return TransformStamped(
-        Header(Time(sec, nsec), t.parent_frame_id),
+        Header(stamp, t.parent_frame_id),
         t.child_frame_id,
         TfTransform(Vector3(float(v.x), float(v.y), float(v.z)), q),
     )
@@ -274,6 +293,7 @@ def _proto_transform(t: Any, index: int | None = None) -> TransformStamped:
 #: :data:`ADAPTERS` for protobuf messages: the transforms read directly.
 PROTO_ADAPTERS: dict[str, Callable[[_Fields], object]] = {
     **ADAPTERS,
+    POINT_CLOUD: _proto_point_cloud,
     FRAME_TRANSFORM: lambda m: Transforms([_proto_transform(m.msg)]),
     FRAME_TRANSFORMS: lambda m: Transforms(
         [_proto_transform(t, i) for i, t in enumerate(m.msg.transforms)]
