@@ -75,6 +75,7 @@ def warm() -> float:
     from scan2terrain.geometry.outlines import trace
     from scan2terrain.geometry.simplify import simplify
     from scan2terrain.grids.tiles import Lattice, TileSet
+    from scan2terrain.octree import _table
     from scan2terrain.octree.bt import bt_bytes
     from scan2terrain.steps import new_tree
     from scan2terrain.types import Pose2D
@@ -99,6 +100,9 @@ def warm() -> float:
     keys, occupied = tree.occupied_and_free()
     tree.logodds_at(keys[:100].astype(np.float64) * 0.1 - 3276.8)
     bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)
+    # The dense store's block table grows only past thousands of dense blocks, more than these
+    # inputs make: its rehash, called with the tree's argument types.
+    _table.rehash(np.zeros((1, 3), np.int32), 0, 4096)
     # The streamed tiles.
     for lattice in (Lattice(0.1, 64), Lattice(0.1, 64, z_min=-1.0, z_max=1.0)):
         tiles = TileSet(lattice)

@@ -404,7 +404,7 @@ def cloud2world(
 
 
 def _fixed_pose(cfg: Config) -> Transform:
-    from scan2terrain.readers.scans import pose6
+    from scan2terrain.readers.poses import pose6
 
     return pose6(cfg.scans.pose or [0.0] * 6)
 

@@ -21,9 +21,10 @@ import math
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-import numba as nb
 import numpy as np
 from numpy.typing import NDArray
+
+from scan2terrain._numba import numba as nb
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree.keys import coord_cell
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy"}

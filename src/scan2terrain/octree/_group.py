@@ -9,9 +9,9 @@ tables are full wait for them to grow (``upsert_sparse``).
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree._sparse import (
     BLOCK_MASK,
     COUNT_SHIFT,

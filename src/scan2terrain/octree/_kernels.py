@@ -16,8 +16,7 @@ from __future__ import annotations
 import types
 from typing import Any, NamedTuple
 
-import numba as nb
-
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree._group import group_new_points, upsert_sparse
 from scan2terrain.octree._points import count_points, mark_point_bits, place_points
 from scan2terrain.octree._raycast import apply_blocks, cast_parallel, flag_blocks

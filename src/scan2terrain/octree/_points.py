@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree._sparse import NPART, NREG_BITS, PART_BITS, _region
 from scan2terrain.octree._table import (
     _JIT,

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree._table import (
     _DEBRUIJN,
     _DEBRUIJN_MUL,

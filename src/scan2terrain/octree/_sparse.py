@@ -28,9 +28,9 @@ to the dense store, and the queries by voxel key, which read both stores (``look
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from scan2terrain._numba import numba as nb
 from scan2terrain.octree._table import (
     _JIT,
     KEY_LIMIT,

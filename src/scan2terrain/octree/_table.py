@@ -18,8 +18,9 @@ from __future__ import annotations
 import math
 import os
 
-import numba as nb
 import numpy as np
+
+from scan2terrain._numba import numba as nb
 
 # numba tries TBB first; Open3D's wheel ships an older libtbb, and once Open3D is loaded numba
 # finds that one, warns and falls back. OpenMP (then numba's own work queue) unless the user

@@ -16,10 +16,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain._numba import numba
 from scan2terrain.errors import InputError
 from scan2terrain.octree import _group, _points, _raycast, _sparse, _table
 from scan2terrain.octree import _kernels as K

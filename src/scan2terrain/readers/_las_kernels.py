@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import numba as nb
+from scan2terrain._numba import numba as nb
 
 
 @nb.njit(nogil=True, cache=True, error_model="numpy")

@@ -31,6 +31,7 @@ Conventions, as tf2's:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -169,3 +170,9 @@ def mount(
     ``base_in_fixed.compose(mount(...))`` is the sensor in the fixed frame.
     """
     return _pose(x, y, z, roll=roll, pitch=pitch, yaw=yaw)
+
+
+def pose6(values: Sequence[float]) -> Transform:
+    """A config pose [x, y, z, roll, pitch, yaw] (metres, radians; ``scans.pose``/``mount``)."""
+    x, y, z, roll, pitch, yaw = values
+    return mount(x, y, z, roll=roll, pitch=pitch, yaw=yaw)

@@ -31,7 +31,7 @@ at identity.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,7 +55,7 @@ from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
-from scan2terrain.readers.poses import mount
+from scan2terrain.readers.poses import pose6
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
 from scan2terrain.types import HeightGrid, Pose2D, Scan, Transform, normalise_frame
@@ -248,12 +248,6 @@ def read_tf(bag: Bag, cfg: ScansConfig) -> TfBuffer:
         for topic, t_ns, msg in bag.messages(topics):
             tf.add_message(msg, static="static" in topic, bag_time_ns=t_ns)
     return tf
-
-
-def pose6(values: Sequence[float]) -> Transform:
-    """A config pose [x, y, z, roll, pitch, yaw] (metres, radians; ``scans.pose``/``mount``)."""
-    x, y, z, roll, pitch, yaw = values
-    return mount(x, y, z, roll=roll, pitch=pitch, yaw=yaw)
 
 
 def _stamp(msg: Any, bag_ns: int) -> int:

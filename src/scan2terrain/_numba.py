@@ -1,0 +1,35 @@
+"""numba, readied for the kernels without the scipy import its BLAS probe makes.
+
+When numba first compiles a function or loads one from its cache, it imports its numpy support
+(``numba.np.arraymath``), whose import probes for BLAS by importing ``scipy.linalg``: 80 ms of
+every process that runs a kernel, and none of our kernels calls BLAS (no ``np.dot``, ``@`` or
+``np.linalg``). Every kernel module imports this one first: it imports that numpy support with
+``scipy.linalg`` unimportable for the moment, so numba records "no BLAS" (it then uses its own
+inner product in ``np.correlate``/``np.convolve``, which we do not use either, and ``np.dot``
+would still import scipy when compiled). A process that has imported ``scipy.linalg`` already
+is left as it is.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numba
+
+__all__ = ["numba"]
+
+_PROBED = "scipy.linalg"
+
+
+def _numpy_support_without_blas_probe() -> None:
+    if "numba.np.arraymath" in sys.modules or _PROBED in sys.modules:
+        return
+    sys.modules[_PROBED] = None  # type: ignore[assignment]  # `import scipy.linalg` fails now
+    try:
+        import numba.np.arraymath  # noqa: F401 - its BLAS probe runs, and finds none
+    finally:
+        if sys.modules.get(_PROBED, _PROBED) is None:
+            del sys.modules[_PROBED]
+
+
+_numpy_support_without_blas_probe()
