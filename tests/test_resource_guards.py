@@ -45,16 +45,53 @@ def run_limited(
     ],
     ids=["autzen-txt", "simple-las"],
 )
-def test_default_resolution_over_a_survey_is_refused_before_allocating(
+def test_a_survey_at_its_default_resolution_fits_and_a_fine_one_is_refused(
     cloud: Path, tmp_path: Path
 ) -> None:
-    """Seen: default cloud2world (0.05 m) grew to 24 GB on the 107-point Autzen text file (OOM
-    killed) and ended in MemoryError on simple.las: their points span kilometres."""
+    """Seen: default cloud2world (then 0.05 m) grew to 24 GB on the 107-point Autzen text file
+    (OOM killed) and ended in MemoryError on simple.las: their points span kilometres. Now the
+    default follows the clouds' extent (said in the report), and 0.05 m given on purpose is
+    refused in one line before the grid is allocated."""
     r = run_limited(["cloud2world", str(cloud), "-o", str(tmp_path / "w")], tmp_path)
+    assert r.returncode == 0, r.stderr[-500:]
+    assert "m (chosen: the clouds span" in r.stdout
+    fine = tmp_path / "fine"
+    fine.mkdir()
+    r = run_limited(
+        ["cloud2world", str(cloud), "-o", str(fine / "w"), "--resolution", "0.05"], fine
+    )
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2, r.stderr[-500:]
     assert len(lines) == 1 and "--resolution" in lines[0] and str(cloud) in lines[0]
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    assert sorted(p.name for p in fine.iterdir()) == []
+
+
+def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Path) -> None:
+    """The autzen LAZ at 0.05 m: 265 M cells, 17.8 GB and 70 s before the budget; now one line
+    with the resolution that fits and the setting that raises it, nothing written."""
+    laz = FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz"
+    for stream in ([], ["--stream"]):
+        r = run_limited(
+            ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.05", *stream],
+            tmp_path,
+        )
+        assert r.returncode == 2, r.stderr[-500:]
+        (line,) = r.stderr.strip().splitlines()
+        assert "over max_memory 8192 MiB: choose --resolution 0.087 or coarser" in line, line
+        assert "raise --max-memory" in line
+        assert not (tmp_path / "w").exists()
+    r = run_limited(
+        ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.2",
+         "--max-memory", "1000"],
+        tmp_path,
+    )  # fmt: skip
+    assert r.returncode == 2 and "over max_memory 1000 MiB: choose --resolution 0.25" in r.stderr
+    r = run_limited(
+        ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.25",
+         "--max-memory", "1000", "-q"],
+        tmp_path,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr  # what it names fits
 
 
 def test_a_fifo_as_config_is_refused_not_waited_on(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
@@ -152,8 +153,10 @@ class ImageConfig:
 class OctreeConfig:
     """The voxel octree (octree2world): OctoMap's defaults."""
 
-    #: Voxel side in metres, for scan inputs (a .bt file carries its own).
-    resolution: float = 0.05
+    #: Voxel side in metres, for scan inputs (a .bt file carries its own). None (cloud2world's
+    #: default): ``DEFAULT_RESOLUTION``, or coarser for clouds too wide for ``terrain.max_side``
+    #: cells of it (see :func:`cloud_resolution`).
+    resolution: float | None = 0.05
     #: Beams longer than this (metres) are cut there and only clear; < 0 = unlimited (OctoMap).
     max_range: float = -1.0
     hit: float = 0.7
@@ -264,6 +267,9 @@ class Config:
     stream: StreamConfig = field(default_factory=StreamConfig)
     #: Refuse images with more pixels than this (decompression bombs).
     max_pixels: int = 1 << 28
+    #: MiB a grid made from voxels or points may take (octree2world, bag2world, cloud2world):
+    #: estimated from its cells before it is allocated, and refused above this.
+    max_memory: int = 8192
 
     def validate(self) -> Config:
         """Raise :class:`ConfigError` naming the first bad value; return self."""
@@ -378,6 +384,7 @@ class Config:
             shift = getattr(cv, name)
             _check(abs(shift) <= MAX_SIDE, f"canvas.{name}", shift, f"within +-{MAX_SIDE} cells")
         _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
+        _check(c.max_memory > 0, "max_memory", c.max_memory, "> 0 (MiB)")
         if cv.width is not None and cv.height is not None:
             _check(
                 cv.width * cv.height <= c.max_pixels,
@@ -387,10 +394,10 @@ class Config:
             )
         o = c.octree
         _check(
-            MIN_VOXEL <= o.resolution <= MAX_CELL,
+            o.resolution is None or MIN_VOXEL <= o.resolution <= MAX_CELL,
             "octree.resolution",
             o.resolution,
-            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres",
+            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (from the clouds' extent)",
         )
         for name in ("hit", "miss", "clamp_min", "clamp_max", "occupancy"):
             _check(0 < getattr(o, name) < 1, f"octree.{name}", getattr(o, name), "in (0, 1)")
@@ -666,3 +673,39 @@ def _bounded(number: int, where: str, source: str) -> int:
             f"{source}: '{where}' = {str(number)[:24]} is invalid: must be within +-{LIMIT:g}"
         )
     return number
+
+
+#: The config keys outside any section (options set them by these names, not ``section.key``).
+TOP_LEVEL_KEYS = ("max_pixels", "max_memory")
+
+
+#: The octree's voxel side where none is given: OctoMap's usual indoor resolution.
+DEFAULT_RESOLUTION = 0.05
+
+
+def octree_resolution(cfg: Config) -> float:
+    """The voxel side the octree is built at: ``octree.resolution``, or the default."""
+    r = cfg.octree.resolution
+    return DEFAULT_RESOLUTION if r is None else r
+
+
+def cloud_resolution(lo: Sequence[float], hi: Sequence[float], cfg: Config) -> tuple[float, str]:
+    """cloud2world's resolution for clouds within ``lo``..``hi`` (metres) when none is given:
+    ``DEFAULT_RESOLUTION``, or, when the longer horizontal side would take more than
+    ``terrain.max_side - 1`` cells of it (the largest heightmap Gazebo is given), that side over
+    those cells rounded up to two significant digits; and the reason, in words."""
+    side = max(float(hi[0]) - float(lo[0]), float(hi[1]) - float(lo[1]), 0.0)
+    cells = cfg.terrain.max_side - 1
+    if side <= cells * DEFAULT_RESOLUTION:
+        return DEFAULT_RESOLUTION, f"resolution {DEFAULT_RESOLUTION:g} m (the default)"
+    res = two_digits_up(side / cells)
+    return res, (
+        f"resolution {res:g} m (chosen: the clouds span {side:,.0f} m, over terrain.max_side"
+        f" {cells + 1} cells at {DEFAULT_RESOLUTION:g} m; --resolution sets it)"
+    )
+
+
+def two_digits_up(x: float) -> float:
+    """``x`` > 0 rounded up to two significant digits (0.1234 -> 0.13)."""
+    step = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return round(math.ceil(x / step - 1e-9) * step, 12)

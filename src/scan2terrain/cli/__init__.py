@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from scan2terrain.cli.display import ProgressBar, TaskBar, report
 from scan2terrain.cli.parser import COMMAND_DEFAULTS, build_parser
-from scan2terrain.config import load_config
+from scan2terrain.config import TOP_LEVEL_KEYS, load_config
 
 if TYPE_CHECKING:
     from scan2terrain.config import Config
@@ -92,7 +92,7 @@ def _run(args: argparse.Namespace) -> int:
     from scan2terrain.steps import refuse_existing
 
     overrides: dict[str, Any] = {
-        k: v for k, v in vars(args).items() if "." in k or k == "max_pixels"
+        k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS
     }
     cfg = load_config(args.config, overrides, defaults=COMMAND_DEFAULTS.get(args.command))
     out = getattr(args, "out", None)

@@ -135,6 +135,13 @@ def common(p: argparse.ArgumentParser) -> None:
     o.add_argument(
         "--max-pixels", type=int, dest="max_pixels", help="refuse larger images and grids"
     )
+    o.add_argument(
+        "--max-memory",
+        type=int,
+        dest="max_memory",
+        metavar="MIB",
+        help="refuse a grid from voxels or points estimated to need more memory (MiB)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
@@ -234,7 +241,8 @@ def octree_options(p: argparse.ArgumentParser) -> None:
         "--resolution",
         type=float,
         dest="octree.resolution",
-        help="voxel side in metres for scan input",
+        help="voxel side in metres for scan input (cloud2world without it: 0.05, or the "
+        "clouds' longer side over terrain.max_side - 1 cells where that is coarser)",
     )
     t.add_argument(
         "--max-range",

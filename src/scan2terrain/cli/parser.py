@@ -20,6 +20,7 @@ from scan2terrain.cli.options import (
     voxel_options,
 )
 from scan2terrain.config import (
+    TOP_LEVEL_KEYS,
     load_config,
 )
 
@@ -41,6 +42,8 @@ examples:
 COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
     # A DEM spans hundreds of metres of height: 8 bits would be steps of range / 255.
     "dem2world": {"terrain.bit_depth": 16, "world.simulator": "gz", "filter.kind": "none"},
+    # Clouds come at every scale, from a room to an airborne survey: see cloud_resolution.
+    "cloud2world": {"octree.resolution": None},
 }
 
 
@@ -126,7 +129,7 @@ def _state_defaults(sub: Any) -> None:
     for command, parser in sub.choices.items():
         cfg = load_config(None, {}, defaults=COMMAND_DEFAULTS.get(command))
         for action in parser._actions:
-            if not ("." in action.dest or action.dest == "max_pixels"):
+            if not ("." in action.dest or action.dest in TOP_LEVEL_KEYS):
                 continue
             if isinstance(action, argparse._StoreConstAction) or action.help is None:
                 continue

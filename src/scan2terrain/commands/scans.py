@@ -341,14 +341,24 @@ def cloud2world(
     if streaming(cfg):
         from scan2terrain.commands import stream
 
+        chosen: list[str] = []
+        if cfg.octree.resolution is None:
+            cfg = _cloud_resolution(cfg, *stream.cloud_bounds(files), chosen)
         streamed = stream.stream_clouds(files, cfg, stream_progress)
         source = url_path(files[0])
-        return stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
+        result = stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
+        result.notes[:0] = chosen
+        return result
     for f in files:
         if is_url(f):
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
     voxels = cfg.world.geometry == "voxels"
-    clouds, _, notes, rgb = read_clouds([Path(f) for f in files], cfg, colours=voxels)
+    clouds, origin, notes, rgb = read_clouds([Path(f) for f in files], cfg, colours=voxels)
+    if cfg.octree.resolution is None:
+        from scan2terrain.commands.stream import cloud_bounds
+
+        lo, hi = cloud_bounds(files, [c + origin for c in clouds])
+        cfg = _cloud_resolution(cfg, lo, hi, notes)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
     outside: dict[Path, int] = {}
@@ -401,6 +411,21 @@ def cloud2world(
     )
     result.notes[:0] = notes
     return result
+
+
+def _cloud_resolution(
+    cfg: Config, lo: NDArray[np.float64], hi: NDArray[np.float64], notes: list[str]
+) -> Config:
+    """``cfg`` with cloud2world's resolution for clouds within ``lo``..``hi`` (none was given);
+    the reason in ``notes`` when it is coarser than the default."""
+    import dataclasses
+
+    from scan2terrain.config import DEFAULT_RESOLUTION, cloud_resolution
+
+    res, why = cloud_resolution(lo.tolist(), hi.tolist(), cfg)
+    if res != DEFAULT_RESOLUTION:
+        notes.append(why)
+    return dataclasses.replace(cfg, octree=dataclasses.replace(cfg.octree, resolution=res))
 
 
 def _fixed_pose(cfg: Config) -> Transform:

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.config import Config
+from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileSet
 
@@ -109,11 +109,32 @@ class Streamed:
 def lattice_for(cfg: Config) -> Lattice:
     o = cfg.octree
     return Lattice(
-        o.resolution,
+        octree_resolution(cfg),
         cfg.stream.tile_cells,
         -math.inf if o.z_min is None else o.z_min,
         math.inf if o.z_max is None else o.z_max,
     )
+
+
+def cloud_bounds(
+    files: Sequence[Path | str], points: Sequence[NDArray[np.float64]] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The bounds of cloud files as both paths know them before any grid: a LAS/LAZ header's,
+    else the points' (``points``, one array per file, when they are read already)."""
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import LAS_SUFFIXES, las_info, url_suffix
+
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i, f in enumerate(files):
+        if url_suffix(f) in LAS_SUFFIXES:
+            info = las_info(f)
+            lo, hi = np.minimum(lo, info.mins), np.maximum(hi, info.maxs)
+            continue
+        p = points[i] if points is not None else read_cloud(Path(f)).points
+        if len(p):
+            lo, hi = np.minimum(lo, p.min(axis=0)), np.maximum(hi, p.max(axis=0))
+    return lo, hi
 
 
 def plan_clouds(
@@ -125,6 +146,7 @@ def plan_clouds(
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import LAS_SUFFIXES, is_url, las_info, url_path, url_suffix
     from scan2terrain.readers.points import local_origin
+    from scan2terrain.steps import refuse_large_grid
 
     st = cfg.stream
     per_task = st.chunk_points * CHUNKS_PER_TASK
@@ -163,6 +185,11 @@ def plan_clouds(
             n, fmt = len(cloud.points), cloud.format
         total += n
         notes.append(f"{name}: {n:,} points ({fmt})")
+    # The tiles and the merge take memory by the cells the points span: refused now, from the
+    # bounds, rather than after streaming (the grid is sized again, exactly, before it is built).
+    res = octree_resolution(cfg)
+    cols, rows = (np.floor(hi[:2] / res) - np.floor(lo[:2] / res) + 1).astype(np.int64)
+    refuse_large_grid(url_path(files[0]), "points", int(rows), int(cols), resolution=res, cfg=cfg)
     origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
     job = Job(
         lattice_for(cfg),
