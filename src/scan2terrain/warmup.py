@@ -24,6 +24,7 @@ from typing import Any
 #: Every module holding numba kernels (``cache=True``).
 KERNEL_MODULES = (
     "scan2terrain.octree._table",
+    "scan2terrain.octree._bt",
     "scan2terrain.octree._raycast",
     "scan2terrain.octree._sparse",
     "scan2terrain.octree._points",

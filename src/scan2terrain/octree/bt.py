@@ -410,69 +410,18 @@ def bt_bytes(*, resolution: float, keys: NDArray[np.uint16], occupied: NDArray[n
 
 
 def _encode(keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> tuple[int, bytes]:
-    """Prune the voxels and serialise the tree; return ``(node count, data bytes)``."""
+    """Prune the voxels and serialise the tree; return ``(node count, data bytes)``: one
+    compiled depth-first pass over the voxels in Morton order (:mod:`scan2terrain.octree._bt`),
+    each voxel's state in the lowest bit of its sort key."""
+    from scan2terrain.octree._bt import serialise
+
     if keys.shape[0] == 0:
         return 0, b""  # OctoMap has no root then and writes no data
-    codes = _morton(keys)
-    order = np.argsort(codes, kind="stable")
-    codes = codes[order]
-    if np.any(codes[1:] == codes[:-1]):
+    packed = np.sort((_morton(keys) << np.uint64(1)) | occupied.astype(np.uint64))
+    if np.any((packed[1:] >> np.uint64(1)) == (packed[:-1] >> np.uint64(1))):
         raise ValueError("keys must be distinct voxels")
-    states = occupied[order]
-
-    # Bottom up: `cand` are the leaves at `depth` that may still merge into their parent (as
-    # Morton prefixes, sorted), `blocked` the parents (at depth - 1) that have an inner child.
-    leaves: list[tuple[NDArray[np.uint64], int, NDArray[np.bool_]]] = []
-    inner: list[tuple[NDArray[np.uint64], int]] = [(np.zeros(1, np.uint64), 0)]
-    cand, cand_state = codes, states
-    blocked = np.zeros(0, np.uint64)
-    for depth in range(TREE_DEPTH, 1, -1):  # OctoMap's prune() never collapses the root
-        parent = cand >> np.uint64(3)
-        if cand.size:
-            first = np.flatnonzero(np.r_[True, parent[1:] != parent[:-1]])
-            uparent = parent[first]
-            count = np.diff(np.r_[first, cand.size])
-            all_occ = np.logical_and.reduceat(cand_state, first)
-            any_occ = np.logical_or.reduceat(cand_state, first)
-            has_inner = _member(uparent, blocked)
-            merge = (count == 8) & (all_occ == any_occ) & ~has_inner
-            stay = ~np.repeat(merge, count)
-            leaves.append((cand[stay], depth, cand_state[stay]))
-            parents_inner = np.union1d(uparent[~merge], blocked)
-            cand, cand_state = uparent[merge], all_occ[merge]
-        else:
-            parents_inner = blocked
-        inner.append((parents_inner, depth - 1))
-        grand = parents_inner >> np.uint64(3)  # sorted, so duplicates are neighbours
-        blocked = grand[np.r_[True, grand[1:] != grand[:-1]]] if grand.size else grand
-    leaves.append((cand, 1, cand_state))
-
-    # Inner nodes in depth first order: sort by (Morton code of the lowest voxel, depth).
-    inner_ids = np.sort(np.concatenate([_node_id(p, d) for p, d in inner]))
-    value = np.zeros(inner_ids.size, dtype=np.float64)
-    children = [(p, d, np.where(s, _OCCUPIED, _FREE)) for p, d, s in leaves]
-    children += [(p, d, np.full(p.size, _INNER)) for p, d in inner if d > 0]
-    n_nodes = inner_ids.size + sum(p.size for p, _, _ in leaves)
-    for prefix, depth, code in children:
-        slot = inner_ids.searchsorted(_node_id(prefix >> np.uint64(3), depth - 1))
-        bits = code.astype(np.float64) * np.exp2(2 * (prefix & np.uint64(7)).astype(np.float64))
-        value += np.bincount(slot, weights=bits, minlength=inner_ids.size)
-    return n_nodes, value.astype("<u2").tobytes()
-
-
-def _node_id(prefix: NDArray[np.uint64], depth: int) -> NDArray[np.uint64]:
-    """Sortable id of nodes: Morton code of their lowest voxel, then depth (parents first)."""
-    aligned: NDArray[np.uint64] = prefix << np.uint64(3 * (TREE_DEPTH - depth))
-    ids: NDArray[np.uint64] = (aligned << np.uint64(5)) | np.uint64(depth)
-    return ids
-
-
-def _member(values: NDArray[np.uint64], sorted_set: NDArray[np.uint64]) -> NDArray[np.bool_]:
-    if sorted_set.size == 0:
-        return np.zeros(values.shape, np.bool_)
-    at = np.minimum(sorted_set.searchsorted(values), sorted_set.size - 1)
-    found: NDArray[np.bool_] = sorted_set[at] == values
-    return found
+    data, nodes = serialise(packed)
+    return int(nodes), data.tobytes()
 
 
 def _morton(keys: NDArray[np.uint16]) -> NDArray[np.uint64]:
