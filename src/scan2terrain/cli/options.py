@@ -241,7 +241,7 @@ def octree_options(p: argparse.ArgumentParser) -> None:
         "--resolution",
         type=float,
         dest="octree.resolution",
-        help="voxel side in metres for scan input (cloud2world without it: 0.05, or the "
+        help="voxel side in metres for scan input (cloud2world's default: 0.05, or the "
         "clouds' longer side over terrain.max_side - 1 cells where that is coarser)",
     )
     t.add_argument(
