@@ -77,7 +77,7 @@ def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Pat
         )
         assert r.returncode == 2, r.stderr[-500:]
         (line,) = r.stderr.strip().splitlines()
-        assert "over max_memory 8192 MiB: choose --resolution 0.087 or coarser" in line, line
+        assert "over max_memory 8192 MiB: choose --resolution 0.13 or coarser" in line, line
         assert "raise --max-memory" in line
         assert not (tmp_path / "w").exists()
     r = run_limited(
@@ -85,9 +85,9 @@ def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Pat
          "--max-memory", "1000"],
         tmp_path,
     )  # fmt: skip
-    assert r.returncode == 2 and "over max_memory 1000 MiB: choose --resolution 0.25" in r.stderr
+    assert r.returncode == 2 and "over max_memory 1000 MiB: choose --resolution 0.36" in r.stderr
     r = run_limited(
-        ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.25",
+        ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.36",
          "--max-memory", "1000", "-q"],
         tmp_path,
     )  # fmt: skip
