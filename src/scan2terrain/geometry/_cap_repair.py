@@ -94,6 +94,9 @@ class _Cap:
             zip(idx.tolist(), map(tuple, xy[idx].tolist()), strict=True)
         )
         self.tris: list[Tri | None] = []
+        #: The slivers among them, kept as triangles change (not found anew over every
+        #: triangle each round: a speckled map's one big cap made that quadratic).
+        self.slivers: set[int] = set()
         self.edge: dict[tuple[int, int], int] = {}
         self.out: dict[int, set[int]] = {}
         self.into: dict[int, set[int]] = {}
@@ -117,6 +120,10 @@ class _Cap:
             while t >= len(self.tris):
                 self.tris.append(None)
             self.tris[t] = tri
+            if tri is not None and self._sliver(t):
+                self.slivers.add(t)
+            else:
+                self.slivers.discard(t)
             if tri is None:
                 continue
             a, b, c = tri
@@ -153,10 +160,8 @@ class _Cap:
         return abs(cross) <= 1e-9 * longest
 
     def _slivers(self) -> list[int]:
-        """Indices of the slivers (see :meth:`_sliver`), found with numpy."""
-        live = [t for t, tri in enumerate(self.tris) if tri is not None]
-        tri = np.array([self.tris[t] for t in live], dtype=np.int64).reshape(-1, 3)
-        return [live[i] for i in np.nonzero(_sliver_mask(self.xy, tri))[0].tolist()]
+        """Indices of the slivers (see :meth:`_sliver`), in order."""
+        return sorted(self.slivers)
 
     def _edges_of(self, t: int) -> tuple[tuple[int, int], ...]:
         tri = self.tris[t]
