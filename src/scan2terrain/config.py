@@ -154,8 +154,8 @@ class OctreeConfig:
     """The voxel octree (octree2world): OctoMap's defaults."""
 
     #: Voxel side in metres, for scan inputs (a .bt file carries its own). None (cloud2world's
-    #: default): ``DEFAULT_RESOLUTION``, or coarser for clouds too wide for ``terrain.max_side``
-    #: cells of it (see :func:`cloud_resolution`).
+    #: default): ``DEFAULT_RESOLUTION``, or coarser for surveys, clouds too wide for
+    #: ``terrain.max_side`` cells of it (see :func:`cloud_resolution`).
     resolution: float | None = 0.05
     #: Beams longer than this (metres) are cut there and only clear; < 0 = unlimited (OctoMap).
     max_range: float = -1.0
@@ -689,16 +689,31 @@ def octree_resolution(cfg: Config) -> float:
     return DEFAULT_RESOLUTION if r is None else r
 
 
-def cloud_resolution(lo: Sequence[float], hi: Sequence[float], cfg: Config) -> tuple[float, str]:
-    """cloud2world's resolution for clouds within ``lo``..``hi`` (metres) when none is given:
-    ``DEFAULT_RESOLUTION``, or, when the longer horizontal side would take more than
-    ``terrain.max_side - 1`` cells of it (the largest heightmap Gazebo is given), that side over
-    those cells rounded up to two significant digits; and the reason, in words."""
-    side = max(float(hi[0]) - float(lo[0]), float(hi[1]) - float(lo[1]), 0.0)
+def cloud_resolution(
+    lo: Sequence[float], hi: Sequence[float], points: int, cfg: Config
+) -> tuple[float, str]:
+    """cloud2world's resolution for ``points`` points within ``lo``..``hi`` (metres) when none
+    is given, and the reason in words. ``DEFAULT_RESOLUTION`` at robot scale. A survey (the
+    longer horizontal side over ``terrain.max_side - 1`` cells of the default, the largest
+    heightmap Gazebo is given) gets the coarser of that side over those cells and the points'
+    mean spacing over the area, ``sqrt(area / points)``: cells no finer than the point spacing,
+    as lidar DEMs are made (about one point a cell). Both rounded up to two significant digits.
+    Robot-scale clouds keep the default: their points lie on walls and objects in 3D, where the
+    area says nothing of their spacing."""
+    dx = max(float(hi[0]) - float(lo[0]), 0.0)
+    dy = max(float(hi[1]) - float(lo[1]), 0.0)
+    side = max(dx, dy)
     cells = cfg.terrain.max_side - 1
     if side <= cells * DEFAULT_RESOLUTION:
         return DEFAULT_RESOLUTION, f"resolution {DEFAULT_RESOLUTION:g} m (the default)"
     res = two_digits_up(side / cells)
+    spacing = math.sqrt(dx * dy / points) if points > 0 else 0.0
+    if spacing > 0 and two_digits_up(spacing) > res:
+        res = two_digits_up(spacing)
+        return res, (
+            f"resolution {res:g} m (chosen: the clouds span {dx:,.0f} x {dy:,.0f} m with"
+            f" {points:,} points, about one a cell at their mean spacing; --resolution sets it)"
+        )
     return res, (
         f"resolution {res:g} m (chosen: the clouds span {side:,.0f} m, over terrain.max_side"
         f" {cells + 1} cells at {DEFAULT_RESOLUTION:g} m; --resolution sets it)"

@@ -174,3 +174,17 @@ def test_one_statistic_is_the_column_stats_one(stat: str) -> None:
     assert np.array_equal(one.heights, full.heights, equal_nan=True)
     with pytest.raises(ValueError, match="stat"):
         tiles.heights("median")
+
+
+def test_partial_results_travel_by_the_cells_with_a_point() -> None:
+    tiles = TileSet(Lattice(0.1, 256))
+    pts = np.random.default_rng(8).uniform([0, 0, 0], [25.5, 25.5, 1], (300, 3))
+    tiles.add_points(pts)
+    assert tiles.nbytes == 256 * 256 * 24  # one whole tile while counting
+    rec = tiles.records()
+    cells = len({(int(x * 10), int(y * 10)) for x, y, _ in pts})
+    assert len(rec.cell) == cells and rec.records.shape == (cells, 3)
+    assert rec.nbytes <= cells * (24 + 4) + 64
+    again = TileSet(Lattice(0.1, 256))
+    again.merge(rec)
+    assert_same(stats_of(again), stats_of(tiles))

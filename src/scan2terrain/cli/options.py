@@ -241,8 +241,9 @@ def octree_options(p: argparse.ArgumentParser) -> None:
         "--resolution",
         type=float,
         dest="octree.resolution",
-        help="voxel side in metres for scan input (cloud2world's default: 0.05, or the "
-        "clouds' longer side over terrain.max_side - 1 cells where that is coarser)",
+        help="voxel side in metres for scan input (cloud2world's default: 0.05, or for a "
+        "survey wider than terrain.max_side - 1 cells of that, the coarser of its side over "
+        "those cells and its mean point spacing)",
     )
     t.add_argument(
         "--max-range",

@@ -357,8 +357,8 @@ def cloud2world(
     if cfg.octree.resolution is None:
         from scan2terrain.commands.stream import cloud_bounds
 
-        lo, hi = cloud_bounds(files, [c + origin for c in clouds])
-        cfg = _cloud_resolution(cfg, lo, hi, notes)
+        lo, hi, n = cloud_bounds(files, [c + origin for c in clouds])
+        cfg = _cloud_resolution(cfg, lo, hi, n, notes)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
     outside: dict[Path, int] = {}
@@ -414,15 +414,16 @@ def cloud2world(
 
 
 def _cloud_resolution(
-    cfg: Config, lo: NDArray[np.float64], hi: NDArray[np.float64], notes: list[str]
+    cfg: Config, lo: NDArray[np.float64], hi: NDArray[np.float64], points: int, notes: list[str]
 ) -> Config:
-    """``cfg`` with cloud2world's resolution for clouds within ``lo``..``hi`` (none was given);
+    """``cfg`` with cloud2world's resolution for ``points`` points within ``lo``..``hi`` (none
+    was given);
     the reason in ``notes`` when it is coarser than the default."""
     import dataclasses
 
     from scan2terrain.config import DEFAULT_RESOLUTION, cloud_resolution
 
-    res, why = cloud_resolution(lo.tolist(), hi.tolist(), cfg)
+    res, why = cloud_resolution(lo.tolist(), hi.tolist(), points, cfg)
     if res != DEFAULT_RESOLUTION:
         notes.append(why)
     return dataclasses.replace(cfg, octree=dataclasses.replace(cfg.octree, resolution=res))

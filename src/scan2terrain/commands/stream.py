@@ -4,8 +4,9 @@ on a Dask cluster.
 cloud2world/bag2world with ``stream.enabled`` (``--stream``):
     plan chunks (LAS/LAZ: ranges of points, from the headers; other cloud files: one per file;
     bags: time slices) -> each chunk read ``stream.chunk_points`` at a time -> end points into a
-    :class:`~scan2terrain.grids.tiles.TileSet` -> partial tile sets merged (exact, any order)
-    -> column statistics or occupancy -> the world, written once, atomically
+    :class:`~scan2terrain.grids.tiles.TileSet` -> partial results (their cells with a point,
+    :class:`~scan2terrain.grids.tiles.TileRecords`) merged (exact, any order) -> column
+    statistics or occupancy (the tiles freed) -> the world, written once, atomically
 With ``stream.workers`` or ``stream.scheduler`` every chunk is a Dask task: workers read their
 chunk themselves (by path: they must see the same files) and send back its tiles; the client
 merges them. Without either, nothing imports Dask.
@@ -33,7 +34,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.grids.tiles import Lattice, TileSet
+from scan2terrain.grids.tiles import Lattice, TileRecords, TileSet
 
 if TYPE_CHECKING:
     from scan2terrain.readers.scans import BagPlan
@@ -118,23 +119,27 @@ def lattice_for(cfg: Config) -> Lattice:
 
 def cloud_bounds(
     files: Sequence[Path | str], points: Sequence[NDArray[np.float64]] | None = None
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The bounds of cloud files as both paths know them before any grid: a LAS/LAZ header's,
-    else the points' (``points``, one array per file, when they are read already)."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """The bounds and the number of points of cloud files as both paths know them before any
+    grid: a LAS/LAZ header's, else the points' (``points``, one array per file, when they are
+    read already)."""
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import LAS_SUFFIXES, las_info, url_suffix
 
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
+    n = 0
     for i, f in enumerate(files):
         if url_suffix(f) in LAS_SUFFIXES:
             info = las_info(f)
             lo, hi = np.minimum(lo, info.mins), np.maximum(hi, info.maxs)
+            n += info.points
             continue
         p = points[i] if points is not None else read_cloud(Path(f)).points
         if len(p):
             lo, hi = np.minimum(lo, p.min(axis=0)), np.maximum(hi, p.max(axis=0))
-    return lo, hi
+            n += len(p)
+    return lo, hi, n
 
 
 def plan_clouds(
@@ -216,13 +221,14 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(task: Sequence[Chunk], job: Job) -> TileSet:
-    """The tiles of a task's end points (one or more chunks): a Dask task's work."""
+def rasterise(task: Sequence[Chunk], job: Job) -> TileRecords:
+    """The cells of a task's end points (one or more chunks): a Dask task's work. Only the
+    cells with a point travel back, not the tiles they were counted in."""
     tiles = TileSet(job.lattice)
     for _, points in _read_ahead(_numbered_points(task, job)):
         if points is not None:
             tiles.add_points(points)
-    return tiles
+    return tiles.records()
 
 
 def tasks_of(chunks: Sequence[Chunk], points_per_task: int) -> list[tuple[Chunk, ...]]:
@@ -442,7 +448,8 @@ def streamed_world(
 ) -> Result:
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
-    ``octree.fill`` says), then as every other grid."""
+    ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
+    grid is made, so their memory is not held while the world is built."""
     from scan2terrain.commands.maps import height_world, occupancy_world
     from scan2terrain.steps import fill_holes, refuse_large_grid
 
@@ -451,12 +458,15 @@ def streamed_world(
         raise InputError(source, "no point in the z band: nothing to make a grid of")
     rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
     refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
-    if cfg.octree.grid == "occupancy":
-        result = occupancy_world(
-            tiles.occupancy(), source, out, cfg, overwrite=overwrite, start=streamed.start
-        )
+    counted = tiles.points
+    grid = tiles.occupancy() if cfg.octree.grid == "occupancy" else None
+    heights = None if grid is not None else tiles.heights(cfg.octree.height_stat)
+    tiles.clear()  # the grid holds what the world needs: the tiles' records go before it is made
+    if grid is not None:
+        result = occupancy_world(grid, source, out, cfg, overwrite=overwrite, start=streamed.start)
     else:
-        heights = fill_holes(tiles.heights(cfg.octree.height_stat), cfg)
+        assert heights is not None
+        heights = fill_holes(heights, cfg)
         result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
-    result.notes[:0] = [*streamed.notes, f"points counted: {tiles.points:,}"]
+    result.notes[:0] = [*streamed.notes, f"points counted: {counted:,}"]
     return result

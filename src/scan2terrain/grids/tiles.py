@@ -111,6 +111,23 @@ def _z_limits(resolution: float, z_min: float, z_max: float) -> tuple[float, flo
     return lo, hi
 
 
+@dataclass(frozen=True)
+class TileRecords:
+    """The cells with a point of a :class:`TileSet`: ``tiles`` (n, 2) tile row and column;
+    tile k's cells are ``cell[ends[k - 1]:ends[k]]`` (index in the tile, row-major) with their
+    24-byte ``records`` (m, 3) int64 as in the tile set."""
+
+    lattice: Lattice
+    tiles: NDArray[np.int64]
+    ends: NDArray[np.int64]
+    cell: NDArray[np.uint32]
+    records: NDArray[np.int64]
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.tiles, self.ends, self.cell, self.records))
+
+
 class TileSet:
     """Per-cell count, z sum, min and max of points, in tiles of the lattice.
 
@@ -153,15 +170,17 @@ class TileSet:
         return int(self.cells[: len(self.index)].nbytes)
 
     def __getstate__(self) -> dict[str, object]:
-        # Only the tiles in use travel (to and from Dask workers), not the spare capacity.
-        return {
-            "lattice": self.lattice,
-            "index": self.index,
-            "cells": self.cells[: len(self.index)].copy(),
-        }
+        # What travels (to and from Dask workers, or a pickle) is the cells with a point.
+        return {"lattice": self.lattice, "records": self.records()}
 
-    def __setstate__(self, state: dict[str, object]) -> None:
-        self.__dict__.update(state)
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        TileSet.__init__(self, state["lattice"])
+        self.merge(state["records"])
+
+    def clear(self) -> None:
+        """Drop every tile (their memory is freed), as when just made."""
+        self.index = {}
+        self.cells = np.zeros((0, self.lattice.tile**2, 3), dtype=np.int64)
 
     # --- adding -------------------------------------------------------------------------------
 
@@ -215,24 +234,41 @@ class TileSet:
 
     # --- merging ------------------------------------------------------------------------------
 
-    def merge(self, other: TileSet) -> None:
+    def records(self) -> TileRecords:
+        """The cells with a point, tile by tile: bytes by the cells that hold points, not by
+        the area of their tiles (what a Dask task sends back)."""
+        n, t2 = len(self.index), self.lattice.tile**2
+        keys = np.array(list(self.index), dtype=np.int64).reshape(n, 2)
+        slots = np.fromiter(self.index.values(), dtype=np.int64, count=n)
+        held = self.cells[:n].reshape(n, t2, 3)[..., 0] > 0
+        slot, cell = np.nonzero(held[slots])  # in the index's order of tiles
+        return TileRecords(
+            self.lattice,
+            keys,
+            np.cumsum(np.bincount(slot, minlength=n)),
+            cell.astype(np.uint32),
+            self.cells[slots[slot], cell],
+        )
+
+    def merge(self, other: TileSet | TileRecords) -> None:
         """Add another partial result of the same lattice (exact, in any order)."""
         if other.lattice != self.lattice:
             raise ValueError(f"cannot merge tiles of {other.lattice} into {self.lattice}")
-        for key, o in other.index.items():
-            s = self._slot(key)
-            mine, theirs = self.cells[s], other.cells[o]
-            n, on = mine[:, 0], theirs[:, 0]
-            lo, hi = mine.view(np.float32)[:, 4], mine.view(np.float32)[:, 5]
-            olo, ohi = theirs.view(np.float32)[:, 4], theirs.view(np.float32)[:, 5]
-            take = (on > 0) & (n == 0)
-            both = (on > 0) & (n > 0)
-            np.minimum(lo, olo, out=lo, where=both)
-            np.maximum(hi, ohi, out=hi, where=both)
-            lo[take] = olo[take]
-            hi[take] = ohi[take]
-            n += on
-            mine[:, 1] += theirs[:, 1]
+        rec = other.records() if isinstance(other, TileSet) else other
+        slots = np.array([self._slot((r, c)) for r, c in rec.tiles.tolist()], dtype=np.int64)
+        t2 = self.lattice.tile**2
+        rows = np.repeat(slots, np.diff(rec.ends, prepend=0)) * t2 + rec.cell
+        flat = self.cells.reshape(-1, 3)  # after _slot: it may have grown
+        mine, theirs = flat[rows], rec.records
+        fresh = mine[:, 0] == 0
+        lo, hi = mine.view(np.float32)[:, 4], mine.view(np.float32)[:, 5]
+        olo, ohi = theirs.view(np.float32)[:, 4], theirs.view(np.float32)[:, 5]
+        np.minimum(lo, olo, out=lo)
+        np.maximum(hi, ohi, out=hi)
+        lo[fresh] = olo[fresh]  # a cell's first points set min and max (the storage's 0s don't)
+        hi[fresh] = ohi[fresh]
+        mine[:, :2] += theirs[:, :2]
+        flat[rows] = mine
 
     # --- results ------------------------------------------------------------------------------
 
