@@ -21,6 +21,38 @@ TREE_DEPTH = 16
 
 
 @nb.njit(**_JIT)
+def _spread(k):
+    """The 16 bits of ``k`` moved to every third bit (bit i to bit 3i)."""
+    x = np.uint64(k)
+    x = (x | (x << np.uint64(16))) & np.uint64(0x0000_FF00_00FF)
+    x = (x | (x << np.uint64(8))) & np.uint64(0x0000_F00F_00F00F)
+    x = (x | (x << np.uint64(4))) & np.uint64(0x00C3_0C30_C30C3)
+    x = (x | (x << np.uint64(2))) & np.uint64(0x0249_2492_49249)
+    return x
+
+
+@nb.njit(**_JIT)
+def sort_keys(keys, occupied):
+    """Each voxel's sort key: its Morton code (the key bits interleaved, x lowest: the depth
+    first order of OctoMap's children) shifted left once, its state in bit 0."""
+    out = np.empty(keys.shape[0], dtype=np.uint64)
+    for i in range(keys.shape[0]):
+        code = _spread(keys[i, 0]) | (_spread(keys[i, 1]) << np.uint64(1))
+        code |= _spread(keys[i, 2]) << np.uint64(2)
+        out[i] = (code << np.uint64(1)) | np.uint64(occupied[i])
+    return out
+
+
+@nb.njit(**_JIT)
+def repeats(packed):
+    """Whether two neighbours of sorted ``packed`` are the same voxel (any state)."""
+    for i in range(1, packed.shape[0]):
+        if (packed[i] >> np.uint64(1)) == (packed[i - 1] >> np.uint64(1)):
+            return True
+    return False
+
+
+@nb.njit(**_JIT)
 def serialise(packed):
     """The pruned tree over ``packed`` (sorted ``morton << 1 | occupied``, distinct voxels, at
     least one): its data bytes and its node count (the root and every inner node's children).

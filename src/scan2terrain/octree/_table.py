@@ -155,3 +155,29 @@ def _block_voxel_key(bk, local):
     ky = (((bk >> 13) & 8191) << 3) | ((local >> 3) & 7)
     kz = ((bk & 8191) << 3) | (local >> 6)
     return voxel_key(kx, ky, kz)
+
+
+@nb.njit(**_JIT)
+def dense_voxels(values, block_xyz, n_blocks):
+    """The dense store's known voxels (value not NaN): keys uint16 (M, 3) and log-odds float32
+    (M,), block by block, each block's in local order (x fastest, then y, z). Two passes (count,
+    then fill): no mask, index or int64 key temporaries over every voxel of every block."""
+    m = 0
+    for b in range(n_blocks):
+        for local in range(512):
+            if not math.isnan(values[b, local]):
+                m += 1
+    keys = np.empty((m, 3), dtype=np.uint16)
+    lo = np.empty(m, dtype=np.float32)
+    j = 0
+    for b in range(n_blocks):
+        x0, y0, z0 = block_xyz[b, 0] * 8, block_xyz[b, 1] * 8, block_xyz[b, 2] * 8
+        for local in range(512):
+            v = values[b, local]
+            if not math.isnan(v):
+                keys[j, 0] = x0 + (local & 7)
+                keys[j, 1] = y0 + ((local >> 3) & 7)
+                keys[j, 2] = z0 + (local >> 6)
+                lo[j] = v
+                j += 1
+    return keys, lo

@@ -63,10 +63,6 @@ _INNER_COUNT = sum(
     ((np.arange(1 << 16, dtype=np.uint32) >> (2 * i)) & 3 == _INNER).astype(np.int8)
     for i in range(8)
 )
-#: Bits 0..7 of a byte spread to bits 0, 3, ..., 21, for Morton codes.
-_SPREAD8 = np.array(
-    [sum(((b >> i) & 1) << (3 * i) for i in range(8)) for b in range(256)], dtype=np.uint64
-)
 
 
 @dataclass(frozen=True)
@@ -413,12 +409,13 @@ def _encode(keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> tuple[int,
     """Prune the voxels and serialise the tree; return ``(node count, data bytes)``: one
     compiled depth-first pass over the voxels in Morton order (:mod:`scan2terrain.octree._bt`),
     each voxel's state in the lowest bit of its sort key."""
-    from scan2terrain.octree._bt import serialise
+    from scan2terrain.octree._bt import repeats, serialise, sort_keys
 
     if keys.shape[0] == 0:
         return 0, b""  # OctoMap has no root then and writes no data
-    packed = np.sort((_morton(keys) << np.uint64(1)) | occupied.astype(np.uint64))
-    if np.any((packed[1:] >> np.uint64(1)) == (packed[:-1] >> np.uint64(1))):
+    packed = sort_keys(np.ascontiguousarray(keys, dtype=np.uint16), occupied.astype(np.bool_))
+    packed.sort()
+    if repeats(packed):
         raise ValueError("keys must be distinct voxels")
     data, nodes = serialise(packed)
     return int(nodes), data.tobytes()
@@ -426,9 +423,8 @@ def _encode(keys: NDArray[np.uint16], occupied: NDArray[np.bool_]) -> tuple[int,
 
 def _morton(keys: NDArray[np.uint16]) -> NDArray[np.uint64]:
     """Interleave the key bits (x lowest): the depth first order of OctoMap's children."""
-    code = np.zeros(keys.shape[0], dtype=np.uint64)
-    for axis in range(3):
-        k = keys[:, axis]
-        spread = _SPREAD8[k & 0xFF] | (_SPREAD8[k >> 8] << np.uint64(24))
-        code |= spread << np.uint64(axis)
-    return code
+    from scan2terrain.octree._bt import sort_keys
+
+    k = np.ascontiguousarray(keys, dtype=np.uint16)
+    codes: NDArray[np.uint64] = sort_keys(k, np.zeros(len(k), dtype=np.bool_)) >> np.uint64(1)
+    return codes

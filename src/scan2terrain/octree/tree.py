@@ -35,10 +35,6 @@ MAX_DENSE = 1 << 24
 #: voxel 11-23 bytes (8 bytes at a load of 0.35-0.7), so 64 voxels keep the sparse store well
 #: below the block's cost while most of a surface's blocks (and their fast path) stay dense.
 DENSE_MIN = 64
-#: Local voxel offsets inside a block, in the kernels' order: local = x | y << 3 | z << 6.
-_LOCAL = np.stack(
-    [np.arange(512) & 7, (np.arange(512) >> 3) & 7, (np.arange(512) >> 6) & 7], axis=1
-).astype(np.int64)
 
 
 def logodds(p: float) -> np.float32:
@@ -156,7 +152,8 @@ class VoxelOctree:
         if o.shape != (3,) or not np.isfinite(o).all():
             raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
         o32 = o.astype(np.float32)
-        if not all(_table.coord_to_key(float(c), 1.0 / self.resolution) >= 0 for c in o32):
+        inv = 1.0 / self.resolution  # coordToKeyChecked, in Python: no kernel call for 3 numbers
+        if not all(-KEY_OFFSET <= math.floor(inv * float(c)) < KEY_OFFSET for c in o32):
             half = KEY_OFFSET * self.resolution
             raise InputError(
                 None,
@@ -451,11 +448,7 @@ class VoxelOctree:
     def voxels(self) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
         """Every known voxel: keys uint16 (M, 3) and log-odds float32 (M,), the dense store's
         block by block, then the sparse store's."""
-        vals = self._values[: self.n_blocks]
-        known = ~np.isnan(vals)
-        slot, local = np.nonzero(known)
-        keys = (self._block_xyz[slot].astype(np.int64) * 8 + _LOCAL[local]).astype(np.uint16)
-        lo = vals[slot, local]
+        keys, lo = _table.dense_voxels(self._values, self._block_xyz, self.n_blocks)
         if self.n_sparse == 0:
             return keys, lo
         skeys, slo = _sparse.sparse_voxels(self._vt, self._lut, self.n_sparse)
