@@ -26,6 +26,7 @@ KERNEL_MODULES = (
     "scan2terrain.octree._table",
     "scan2terrain.octree._bt",
     "scan2terrain.octree._raycast",
+    "scan2terrain.octree._raybox",
     "scan2terrain.octree._sparse",
     "scan2terrain.octree._points",
     "scan2terrain.octree._group",
@@ -94,6 +95,8 @@ def warm() -> float:
         scan = np.column_stack([4 * np.cos(angles), 3 * np.sin(angles), z])
         tree.insert_scan(scan, np.zeros(3), max_range=-1.0)
         tree.insert_scan(scan.astype(np.float32) + 0.3, np.full(3, 0.3), max_range=3.0)
+    # Long beams in open space: the box would be mostly empty, the dense store's bits instead.
+    tree.insert_scan(100 * scan[::2], np.zeros(3), max_range=-1.0)
     for n in (2_000, 300_000):
         for spread in (60.0, 2.0):
             tree.insert_endpoints(rng.uniform(-spread, spread, (n, 3)))

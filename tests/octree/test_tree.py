@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.octree import _kernels as K
-from scan2terrain.octree import _raycast
+from scan2terrain.octree import _raybox, _raycast
+from scan2terrain.octree import tree as tree_module
 from scan2terrain.octree.tree import InsertStats, SensorModel, VoxelOctree
 from tests.octree._octomap_ref import (
     assert_identical,
@@ -258,18 +259,47 @@ def test_insert_endpoints_counts_out_of_range_and_nonfinite() -> None:
 def test_parallel_insertion_is_deterministic(
     fr079: Scan, threads: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """FR-079 at 0.05 m with 1 and with 2 numba threads: the same voxels, bit for bit."""
+    """FR-079 at 0.05 m with 1 and with 2 numba threads, cast into the scan's own box of bits
+    and into the dense store's bits: the same voxels, bit for bit."""
     if numba.config.NUMBA_NUM_THREADS < 2:  # type: ignore[attr-defined]
         pytest.fail("needs numba with >= 2 threads (set NUMBA_NUM_THREADS=2) to run in parallel")
+    boxed: list[tuple[Any, ...]] = []
+    cast_box = _raybox.cast_box
+    monkeypatch.setattr(_raybox, "cast_box", lambda *a: boxed.append(a) or cast_box(*a))
     parallel = spy(monkeypatch, "cast_parallel")
     results = []
     for n in (1, 2, 1, 2):
         numba.set_num_threads(n)
         results.append(ours_voxels(our_tree(0.05, [fr079])))
-    assert [call[4] for call in parallel] == [1, 2, 1, 2]  # miss planes = threads casting
+    assert [call[6].shape[1] for call in boxed] == [16, 24, 16, 24]  # miss planes = threads
+    assert parallel == []
+    monkeypatch.setattr(tree_module, "MAX_BOX_BLOCKS", 0)  # no box: the dense store's bits
+    for n in (1, 2):
+        numba.set_num_threads(n)
+        results.append(ours_voxels(our_tree(0.05, [fr079])))
+    assert [call[4] for call in parallel] == [1, 2]
     for keys, lo in results[1:]:
         np.testing.assert_array_equal(keys, results[0][0])
         np.testing.assert_array_equal(lo, results[0][1])
+
+
+def test_a_ray_leaving_the_box_casts_the_scan_the_dense_stores_way(
+    octomap: ModuleType, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ray that would step out of the scan's box (rounding past its end by more than the
+    box's block of margin: not seen, but not proven impossible) sends the whole scan to the
+    dense store's bits; told so by cast_box, the tree is as OctoMap's."""
+    rng = np.random.default_rng(21)
+    origin = np.array([0.12, -0.31, 0.4])
+    points = origin + rng.normal(0.0, 3.0, (6000, 3))
+    cast_box = _raybox.cast_box
+    monkeypatch.setattr(_raybox, "cast_box", lambda *a: cast_box(*a) + 1)
+    parallel = spy(monkeypatch, "cast_parallel")
+    ours = VoxelOctree(0.1)
+    ours.insert_scan(points, origin)
+    assert len(parallel) == 1
+    ref = octomap_tree(octomap, 0.1, [(points, origin)])
+    assert_identical(compare(ours, ref), "6000 rays, box refused")
 
 
 # -- 2. semantics on hand-made scans ----------------------------------------------------------

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from scan2terrain._numba import numba
 from scan2terrain.errors import InputError
-from scan2terrain.octree import _group, _points, _raycast, _sparse, _table
+from scan2terrain.octree import _group, _points, _raybox, _raycast, _sparse, _table
 from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
@@ -30,6 +30,11 @@ TREE_DEPTH = 16
 PARALLEL_MIN_RAYS = 4096
 #: Largest per-scan dense block index (int32 entries): 64 MB.
 MAX_DENSE = 1 << 24
+#: A scan of PARALLEL_MIN_RAYS rays or more is cast into its own box of bits (_raybox.py) when
+#: the box has at most this many blocks and at most BOX_BLOCKS_PER_RAY blocks a ray (above, most
+#: of the box would be empty: long beams in open space); else into the dense store's bits.
+MAX_BOX_BLOCKS = 1 << 19
+BOX_BLOCKS_PER_RAY = 8
 #: End points only: a block with this many known voxels or more is stored densely; below, its
 #: voxels stay in the sparse store. A dense block costs ~2.3 KB (values, bits, index), a sparse
 #: voxel 11-23 bytes (8 bytes at a load of 0.35-0.7), so 64 voxels keep the sparse store well
@@ -163,9 +168,54 @@ class VoxelOctree:
         res = self.resolution
         ends, kind, stats = _raycast.scan_rays(pts, o32, float(max_range), res)
         self._next_scan()
+        k = self._kernels(len(pts))
+        if k is K.PARALLEL and (done := self._cast_box(o32, ends, kind)) is not None:
+            hits, misses = done
+        else:
+            hits, misses = self._cast_blocks(k, o32, ends, kind)
+        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
+
+    def _cast_box(
+        self, o32: NDArray[np.float32], ends: NDArray[np.float32], kind: NDArray[np.int8]
+    ) -> tuple[int, int] | None:
+        """A scan's rays cast into its own box of bits (see _raybox.py), then applied; None
+        (nothing changed) when the box is too large or a ray would leave it."""
+        b = _raycast.block_bounds(o32, ends, self.resolution)
+        lo = np.maximum(b[0] - 1, 0)
+        nbk = np.minimum(b[1] + 1, (1 << (TREE_DEPTH - 3)) - 1) - lo + 1
+        blocks = int(np.prod(nbk))
+        # Rows are 8 + 8 * threads words: the limit is on blocks, the same for any thread count.
+        if blocks > MAX_BOX_BLOCKS or blocks > BOX_BLOCKS_PER_RAY * len(ends):
+            return None
+        bits = np.zeros((blocks, 8 + 8 * numba.get_num_threads()), dtype=np.uint64)
+        lo_key = lo * 8
+        with numba.parallel_chunksize(1):
+            left = _raybox.cast_box(o32, ends, kind, self.resolution, lo_key, nbk, bits)
+        if left:
+            return None
+        rows = np.empty(blocks, dtype=np.int64)
+        first_new = self.n_blocks
+        self._until_done(
+            lambda i: _raybox.alloc_box(bits, lo_key, nbk, i, rows, *self._storage()[1:])
+        )
+        self._counts[_table.N_TOUCHED] = 0  # apply_box goes by rows, not by the touched list
+        self._fresh_blocks(first_new)
+        self._adopt(np.arange(first_new, self.n_blocks))
+        with numba.parallel_chunksize(1024):  # rows handed out as threads ask, as the rays
+            hits, misses = _raybox.apply_box(self._values, bits, rows, self._model)
+        return int(hits), int(misses)
+
+    def _cast_blocks(
+        self,
+        k: K.Kernels,
+        o32: NDArray[np.float32],
+        ends: NDArray[np.float32],
+        kind: NDArray[np.int8],
+    ) -> tuple[int, int]:
+        """A scan's rays cast into the dense store's bits (see _raycast.py), then applied."""
+        res = self.resolution
         first_new = self.n_blocks
         dense, box = self._scan_box(o32, ends)
-        k = self._kernels(len(pts))
         k.flag_blocks(o32, ends, kind, res, dense, box)
         self._until_done(lambda i: _raycast.alloc_flagged(dense, box, i, *self._storage()))
         self._until_done(
@@ -181,8 +231,7 @@ class VoxelOctree:
         )
         self._fresh_blocks(first_new)
         self._adopt(np.arange(first_new, self.n_blocks))
-        hits, misses = self._apply(k)
-        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
+        return self._apply(k)
 
     def _scan_box(
         self, origin: NDArray[np.float32], ends: NDArray[np.float32]

@@ -1,0 +1,188 @@
+"""Ray casting into the scan's own box of bits (numba): insert_scan's path for large scans.
+
+The rays of one scan from one origin mark their voxels in a bit array of the scan's own: the
+blocks (8 x 8 x 8 voxels) of the bounding box of the origin and the ray ends, with one block of
+margin, row ``((bx * nby) + by) * nbz + bz`` of ``bits`` for block (bx, by, bz) of the box. A row
+is the block's hit words 0..7 and each thread's miss words 8 + 8t .. 15 + 8t, as the dense
+store's bits (_raycast.py). A step of a ray then costs its key arithmetic and one OR: no block
+id, no look-up of the block's slot, no pass to find the blocks first. After the rays, the
+blocks with a bit get their slot in the dense store (``alloc_box``, in box order) and one
+log-odds update per marked voxel, hits winning (``apply_box``), as OctoMap's insertPointCloud.
+
+The voxels visited are computeRayKeys' own (the same arithmetic as ``_raycast._cast``). A ray
+that would step out of the box (rounding can carry a ray a voxel past its end; a block of
+margin holds that) is counted, and the caller casts the whole scan again the dense store's way.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from scan2terrain._numba import numba as nb
+from scan2terrain.octree._raycast import _axis_start, _sign
+from scan2terrain.octree._table import (
+    _DEBRUIJN,
+    _DEBRUIJN_MUL,
+    _JIT,
+    DONE,
+    _room,
+    _slot,
+    block_id,
+    coord_to_key,
+)
+
+
+@nb.njit(**_JIT)
+def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, word0):
+    """computeRayKeys from o to e (float32), setting each voxel's bit in words ``word0`` ..
+    ``word0 + 7`` of its block's row; False if the ray would leave the box (nothing more set)."""
+    res_factor = 1.0 / resolution
+    nx, ny, nz = nbk[0] * 8, nbk[1] * 8, nbk[2] * 8
+    # Keys relative to the box's corner (lo: a block corner, so block = key >> 3 there too).
+    kx = coord_to_key(np.float64(ox), res_factor) - lo[0]
+    ky = coord_to_key(np.float64(oy), res_factor) - lo[1]
+    kz = coord_to_key(np.float64(oz), res_factor) - lo[2]
+    ekx = coord_to_key(np.float64(ex), res_factor) - lo[0]
+    eky = coord_to_key(np.float64(ey), res_factor) - lo[1]
+    ekz = coord_to_key(np.float64(ez), res_factor) - lo[2]
+    dx = np.float32(ex - ox)
+    dy = np.float32(ey - oy)
+    dz = np.float32(ez - oz)
+    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
+    dx = dx / length
+    dy = dy / length
+    dz = dz / length
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    tx, ddx = _axis_start(kx + lo[0], sx, ox, dx, resolution)
+    ty, ddy = _axis_start(ky + lo[1], sy, oy, dy, resolution)
+    tz, ddz = _axis_start(kz + lo[2], sz, oz, dz, resolution)
+    nby, nbz = nbk[1], nbk[2]
+    while True:
+        row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
+        local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
+        bits[row, word0 + (local >> 6)] |= np.uint64(1) << np.uint64(local & 63)
+        # The minimum tMax, ties going to the later axis, exactly as computeRayKeys; the axis
+        # stepped is checked against the box (one unsigned compare).
+        if tx < ty:
+            if tx < tz:
+                kx += sx
+                tx += ddx
+                if np.uint64(kx) >= np.uint64(nx):
+                    return False
+            else:
+                kz += sz
+                tz += ddz
+                if np.uint64(kz) >= np.uint64(nz):
+                    return False
+        elif ty < tz:
+            ky += sy
+            ty += ddy
+            if np.uint64(ky) >= np.uint64(ny):
+                return False
+        else:
+            kz += sz
+            tz += ddz
+            if np.uint64(kz) >= np.uint64(nz):
+                return False
+        if kx == ekx and ky == eky and kz == ekz:
+            return True
+        if min(min(tx, ty), tz) > length:  # noqa: PLW3301 (computeRayKeys' own form)
+            return True
+
+
+@nb.njit(parallel=True, **_JIT)
+def cast_box(origin, ends, kind, resolution, lo, nbk, bits):
+    """Every clearing ray's miss bits, on every core: chunks of 256 rays, handed to the threads
+    as they ask (numba.parallel_chunksize(1) around the call: a thread whose core is taken by
+    another process holds up one chunk, not a share of the scan); thread t writes its own words
+    8 + 8t .. 15 + 8t (plain ORs, no bit lost). Then every hit's hit bit. Returns how many rays
+    would have left the box (0: the bits are complete)."""
+    n = ends.shape[0]
+    chunk = 256
+    n_chunks = (n + chunk - 1) // chunk
+    left = np.zeros(n_chunks, dtype=np.int64)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for c in nb.prange(n_chunks):
+        word0 = 8 + 8 * nb.get_thread_id()
+        for i in range(c * chunk, min(n, (c + 1) * chunk)):
+            if kind[i] & 2 and not _ray(
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], resolution, lo, nbk, bits, word0
+            ):
+                left[c] += 1
+    res_factor = 1.0 / resolution
+    nby, nbz = nbk[1], nbk[2]
+    for i in range(n):
+        if kind[i] & 1:  # the hit's voxel is in the box: the box holds every end
+            kx = coord_to_key(np.float64(ends[i, 0]), res_factor) - lo[0]
+            ky = coord_to_key(np.float64(ends[i, 1]), res_factor) - lo[1]
+            kz = coord_to_key(np.float64(ends[i, 2]), res_factor) - lo[2]
+            row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
+            local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
+            bits[row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+    return left.sum()
+
+
+@nb.njit(**_JIT)
+def alloc_box(
+    bits, lo, nbk, start, rows, block_xyz, stamp, table_keys, table_slots, counts, touched
+):
+    """Serial, in box order: every block of the box with a bit gets its slot in the dense store
+    (allocated if new, recorded as touched by this scan) in ``rows`` (-1: no bit). Resumable:
+    returns (next row, DONE or NEED_*)."""
+    nby, nbz = nbk[1], nbk[2]
+    bx0, by0, bz0 = lo[0] >> 3, lo[1] >> 3, lo[2] >> 3
+    for row in range(start, bits.shape[0]):
+        marked = np.uint64(0)
+        for w in range(bits.shape[1]):
+            marked |= bits[row, w]
+        if marked == 0:
+            rows[row] = -1
+            continue
+        status = _room(1, counts, block_xyz, touched, table_keys)
+        if status != DONE:
+            return row, status
+        bx = bx0 + row // (nby * nbz)
+        by = by0 + (row // nbz) % nby
+        bz = bz0 + row % nbz
+        rows[row] = _slot(
+            block_id(bx, by, bz), bx, by, bz, block_xyz, stamp, table_keys, table_slots,
+            counts, touched,
+        )  # fmt: skip
+    return bits.shape[0], DONE
+
+
+@nb.njit(parallel=True, **_JIT)
+def apply_box(values, bits, rows, model):
+    """OctoMap's updateNodeLogOdds once per marked voxel of the box (a hit where the hit bit is
+    set, else a miss), into the dense store's block ``rows[row]``. Blocks are disjoint, so they
+    go to the cores in parallel. Returns (hits, misses)."""
+    lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
+    hits = 0
+    misses = 0
+    for row in nb.prange(bits.shape[0]):
+        cs = rows[row]
+        if cs < 0:
+            continue
+        for w in range(8):
+            hit_word = bits[row, w]
+            any_word = hit_word
+            for p in range(8 + w, bits.shape[1], 8):
+                any_word |= bits[row, p]
+            rest = any_word
+            while rest:  # each set bit, lowest first
+                bit = rest & (~rest + np.uint64(1))
+                rest ^= bit
+                local = w * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+                v = values[cs, local]
+                if math.isnan(v):
+                    v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
+                if hit_word & bit:
+                    v = np.float32(v + lo_hit)
+                    hits += 1
+                else:
+                    v = np.float32(v + lo_miss)
+                    misses += 1
+                values[cs, local] = cmin if v < cmin else (cmax if v > cmax else v)
+    return hits, misses
