@@ -206,12 +206,15 @@ def group_new_points(keys, seg, vt, st, sparse_counts, dense_min, max_hits, thre
     Returns, per partition, the
     keys written (NPART, 2: the runs going dense, all) and per region (NREG, 4): voxels and
     blocks left for upsert_sparse (at most new to the tables), runs going dense, voxels hit.
-    Thread t of ``threads`` takes partitions t, t + threads, ... with its own scratch arrays."""
+    Each partition is a loop iteration with scratch arrays of its own, handed to the threads as
+    they ask (under numba.parallel_chunksize(1): a thread whose core another process holds
+    delays one partition, not a share of them), so nothing depends on ``threads`` (kept for the
+    kernel's signature) or on which thread takes a partition."""
     written = np.zeros((NPART, 2), dtype=np.int64)
     out = np.zeros((NREG, 4), dtype=np.int64)
-    for t in nb.prange(threads):
+    for p in nb.prange(NPART):
         _group_partitions(
-            t, threads, keys, seg, vt, st, sparse_counts, dense_min, max_hits, written, out
+            p, NPART, keys, seg, vt, st, sparse_counts, dense_min, max_hits, written, out
         )
     return written, out
 

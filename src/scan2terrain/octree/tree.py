@@ -261,6 +261,12 @@ class VoxelOctree:
         pts = self._points_any(points)
         self._next_scan()
         k = self._kernels(len(pts) // 16)  # a point is far less work than a ray
+        # Chunks of points and partitions go to the threads as they ask: a core held by
+        # another process then delays one piece, not a thread's whole share.
+        with numba.parallel_chunksize(1):
+            return self._insert_endpoints(k, pts)
+
+    def _insert_endpoints(self, k: K.Kernels, pts: NDArray[np.float32]) -> InsertStats:
         # a tree without dense blocks: no classes to keep (place_points recomputes partitions)
         cls = np.empty(len(pts) if self.n_blocks else 0, dtype=np.int32)
         hist = k.count_points(pts, self.resolution, self._table_keys, self._table_slots, cls)
@@ -383,14 +389,15 @@ class VoxelOctree:
         return min(numba.get_num_threads(), self._bits.shape[1] // 8 - 1)
 
     def _apply(self, k: K.Kernels, *, all_hits: bool = False) -> tuple[int, int]:
-        hits, misses = k.apply_blocks(
-            self._values,
-            self._bits,
-            self._touched,
-            int(self._counts[_table.N_TOUCHED]),
-            self._model,
-            all_hits,
-        )
+        with numba.parallel_chunksize(256):  # blocks handed out as threads ask
+            hits, misses = k.apply_blocks(
+                self._values,
+                self._bits,
+                self._touched,
+                int(self._counts[_table.N_TOUCHED]),
+                self._model,
+                all_hits,
+            )
         self._counts[_table.N_TOUCHED] = 0
         return int(hits), int(misses)
 
