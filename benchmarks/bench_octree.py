@@ -19,6 +19,12 @@ Measures, and prints as tables:
    points at 0.1 m (``insert_endpoints`` vs ``updateNodes``). Target: ours <= 0.5x OctoMap's.
 4. ``.bt`` size and write time: ``write_bt`` vs ``OcTree.writeBinary`` for FR-079 at 0.05 m.
    Target: size within 1.05x.
+5. End to end on FR-079 at 0.05 m, each a fresh process (3 runs): ``scan2terrain octree2world
+   scan.dat.bz2 -o OUT --resolution 0.05`` (read, ray cast, .bt, projection, walls world,
+   heightmap, preview) against OctoMap's own tools making only the ``.bt``: ``log2graph`` (the
+   scan, decompressed beforehand and given a ``NODE 0 0 0 0 0 0`` line, to a graph) then
+   ``graph2tree -res 0.05``; time and peak memory (ru_maxrss), and whether the two ``.bt`` files
+   are the same bytes. Target (issue 17): >= 10x OctoMap's time, peak memory <= OctoMap's.
 
 Times are wall clock (time.perf_counter); "best" is the minimum over the repetitions and "median"
 their median. Other processes may share the machine: the load average is printed before and
@@ -396,6 +402,71 @@ def measure_memory(which: str, data: Path, res: float) -> dict[str, Any]:
     return result
 
 
+#: Runs a command and prints its wall time and peak memory (its ru_maxrss) as JSON.
+_TIMER = (
+    "import json, resource, subprocess, sys, time; t = time.perf_counter(); "
+    "r = subprocess.run(sys.argv[1:], capture_output=True); "
+    "print(json.dumps({'seconds': time.perf_counter() - t, 'rc': r.returncode, "
+    "'peak_kb': resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss}))"
+)
+
+
+def run_timed(cmd: list[str]) -> dict[str, Any]:
+    """``cmd`` in a fresh process (through a small launcher): seconds, exit code, peak KB."""
+    done = subprocess.run(
+        [sys.executable, "-S", "-c", _TIMER, *cmd], check=True, capture_output=True, text=True
+    )
+    result: dict[str, Any] = json.loads(done.stdout)
+    if result["rc"] != 0:
+        raise RuntimeError(f"{cmd[0]} failed ({result['rc']})")
+    return result
+
+
+def end_to_end(tmp: Path, summary: list[tuple[str, str, str, bool]]) -> None:
+    """Part 5: octree2world on FR-079 against log2graph + graph2tree, fresh processes."""
+    import shutil
+
+    print()
+    print("5. End to end, FR-079 at 0.05 m, a fresh process per run (3 runs, wall time, peak RSS)")
+    tools = [shutil.which(t) for t in ("log2graph", "graph2tree")]
+    cli = shutil.which("scan2terrain") or str(Path(sys.executable).parent / "scan2terrain")
+    if None in tools:
+        print("   skipped: octomap-tools (log2graph, graph2tree) not installed")
+        return
+    log = tmp / "scan_node.dat"
+    log.write_bytes(b"NODE 0 0 0 0 0 0\n" + bz2.decompress(FR079.read_bytes()))
+    graph, bt, out = tmp / "scan.graph", tmp / "octomap.bt", tmp / "fr079_world"
+    ours, octo = [], []
+    for _ in range(3):
+        ours.append(
+            run_timed([cli, "octree2world", str(FR079), "-o", str(out), "--resolution", "0.05",
+                       "--overwrite", "-q"])
+        )  # fmt: skip
+        a = run_timed([str(tools[0]), str(log), str(graph)])
+        b = run_timed([str(tools[1]), "-i", str(graph), "-o", str(bt), "-res", "0.05"])
+        octo.append(
+            {"seconds": a["seconds"] + b["seconds"], "peak_kb": max(a["peak_kb"], b["peak_kb"])}
+        )
+    same = (out / "octree.bt").read_bytes() == bt.read_bytes()
+    t_ours = Timing([r["seconds"] for r in ours])
+    t_octo = Timing([r["seconds"] for r in octo])
+    m_ours = max(r["peak_kb"] for r in ours) / 1024
+    m_octo = max(r["peak_kb"] for r in octo) / 1024
+    print(f"   {'':<38} {'best s':>7} {'median':>7} {'peak MB':>8}")
+    for name, t, m in (
+        ("scan2terrain octree2world (a world)", t_ours, m_ours),
+        ("log2graph + graph2tree (a .bt)", t_octo, m_octo),
+    ):
+        print(f"   {name:<38} {t.best:7.2f} {t.median:7.2f} {m:8.0f}")
+    ratio = t_octo.best / t_ours.best
+    bytes_ = "are" if same else "are NOT"
+    print(f"   speed-up {ratio:.1f}x (target >= 10x); the two .bt files {bytes_} the same bytes")
+    summary.append(("end to end FR-079 0.05 m", f"{ratio:.1f}x", ">= 10x", ratio >= 10.0))
+    summary.append(
+        ("end to end peak memory", f"{m_ours:.0f} MB", f"<= {m_octo:.0f} MB", m_ours <= m_octo)
+    )
+
+
 # --- printing -----------------------------------------------------------------------------------
 
 
@@ -565,8 +636,8 @@ def main() -> None:
         "--only",
         nargs="+",
         type=int,
-        choices=(1, 2, 3, 4),
-        default=(1, 2, 3, 4),
+        choices=(1, 2, 3, 4, 5),
+        default=(1, 2, 3, 4, 5),
         help="run only these parts (part 4 needs part 1's FR-079 trees)",
     )
     parser.add_argument(
@@ -689,6 +760,9 @@ def run(*, quick: bool, tmp: Path, parts: set[int]) -> None:
             print_stages(f"FR-079 {res:g} m", st, tot)
         st, tot = stage_profile(room, 0.1, 3)
         print_stages("room 0.1 m", st, tot)
+
+    if 5 in parts:
+        end_to_end(tmp, summary)
 
     if 2 in parts:
         ours_rate = endpoint_part(n_end, quick, summary)
