@@ -695,11 +695,12 @@ def cloud_resolution(
     """cloud2world's resolution for ``points`` points within ``lo``..``hi`` (metres) when none
     is given, and the reason in words. ``DEFAULT_RESOLUTION`` at robot scale. A survey (the
     longer horizontal side over ``terrain.max_side - 1`` cells of the default, the largest
-    heightmap Gazebo is given) gets the coarser of that side over those cells and the points'
-    mean spacing over the area, ``sqrt(area / points)``: cells no finer than the point spacing,
-    as lidar DEMs are made (about one point a cell). Both rounded up to two significant digits.
-    Robot-scale clouds keep the default: their points lie on walls and objects in 3D, where the
-    area says nothing of their spacing."""
+    heightmap Gazebo is given) gets the coarser of that side over those cells and twice the
+    points' mean spacing over the area, ``2 * sqrt(area / points)``: about four points a cell.
+    At one point a cell (the spacing itself) a third of the cells would get none (Poisson):
+    holes in a height grid and speckle in an occupancy grid. Both rounded up to two
+    significant digits. Robot-scale clouds keep the default: their points lie on walls and
+    objects in 3D, where the area says nothing of their spacing."""
     dx = max(float(hi[0]) - float(lo[0]), 0.0)
     dy = max(float(hi[1]) - float(lo[1]), 0.0)
     side = max(dx, dy)
@@ -708,11 +709,11 @@ def cloud_resolution(
         return DEFAULT_RESOLUTION, f"resolution {DEFAULT_RESOLUTION:g} m (the default)"
     res = two_digits_up(side / cells)
     spacing = math.sqrt(dx * dy / points) if points > 0 else 0.0
-    if spacing > 0 and two_digits_up(spacing) > res:
-        res = two_digits_up(spacing)
+    if spacing > 0 and two_digits_up(2 * spacing) > res:
+        res = two_digits_up(2 * spacing)
         return res, (
             f"resolution {res:g} m (chosen: the clouds span {dx:,.0f} x {dy:,.0f} m with"
-            f" {points:,} points, about one a cell at their mean spacing; --resolution sets it)"
+            f" {points:,} points, about four a cell; --resolution sets it)"
         )
     return res, (
         f"resolution {res:g} m (chosen: the clouds span {side:,.0f} m, over terrain.max_side"

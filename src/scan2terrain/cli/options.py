@@ -243,7 +243,7 @@ def octree_options(p: argparse.ArgumentParser) -> None:
         dest="octree.resolution",
         help="voxel side in metres for scan input (cloud2world's default: 0.05, or for a "
         "survey wider than terrain.max_side - 1 cells of that, the coarser of its side over "
-        "those cells and its mean point spacing)",
+        "those cells and twice its mean point spacing)",
     )
     t.add_argument(
         "--max-range",
