@@ -4,6 +4,10 @@ exactly a wall quad's edge and every face has area."""
 
 from __future__ import annotations
 
+import heapq
+from collections.abc import Iterable
+from typing import TypeVar
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -60,11 +64,47 @@ def _member(keys: NDArray[np.int64], sorted_keys: NDArray[np.int64]) -> NDArray[
 
 
 Tri = tuple[int, int, int]
+Edge = tuple[int, int]
+_A = TypeVar("_A")
 
 
-def _tri_edges(tri: Tri) -> tuple[tuple[int, int], ...]:
+def _tri_edges(tri: Tri) -> tuple[Edge, ...]:
     a, b, c = tri
     return ((a, b), (b, c), (c, a))
+
+
+def _flat(p: dict[int, tuple[float, float]], tri: Tri) -> bool:
+    """Whether the triangle has no area (up to rounding, relative to its longest edge)."""
+    (ax, ay), (bx, by), (cx, cy) = (p[i] for i in tri)
+    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    longest = max(
+        (bx - ax) ** 2 + (by - ay) ** 2,
+        (cx - bx) ** 2 + (cy - by) ** 2,
+        (ax - cx) ** 2 + (ay - cy) ** 2,
+    )
+    return abs(cross) <= 1e-9 * longest
+
+
+def _grouped(keys: NDArray[np.int64], values: NDArray[np.int64]) -> dict[int, set[int]]:
+    """Each key's values as a set, filled in array order (as one ``add`` after another would
+    fill it, so the sets iterate in the same order too)."""
+    if len(keys) == 0:
+        return {}
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    bounds = np.append(first, len(keys)).tolist()
+    vals = values[order].tolist()
+    return {
+        k: set(vals[lo:hi])
+        for k, lo, hi in zip(keys[first].tolist(), bounds[:-1], bounds[1:], strict=True)
+    }
+
+
+def _watch(watchers: dict[int, list[_A]], attempt: _A, points: Iterable[int]) -> None:
+    """Have a failed attempt made again once a triangle at one of the points changes."""
+    for v in points:
+        watchers.setdefault(v, []).append(attempt)
 
 
 class _Cap:
@@ -82,55 +122,137 @@ class _Cap:
       through a point. That edge (and the one of the triangle across it) is split there;
     * what is left (a run of slivers along one line, each the other's neighbour) is cut out
       with its neighbours and ear-clipped anew with strict ears (:func:`_strict_ears`).
+
+    Each round of :meth:`repair` is a sweep of flips over every sliver, else the first sliver
+    that ear-clips anew, else a sweep of splits over every edge. A speckled map's one big cap
+    holds tens of thousands of slivers, most of which no flip helps until a neighbour is
+    ear-clipped, one per round: trying them all every round was quadratic. So an attempt that
+    fails is watched (:func:`_watch`) by the points its outcome depends on (the corners of the
+    triangles it reads: every triangle it looks at has a corner among them) and made again only
+    once a triangle at one of them changes (:meth:`_set`). The sweeps visit what is left to try
+    in the order a sweep over everything visits it, so the repairs, and the triangles, are the
+    same as trying everything every round. (One thing is not done again: a flip that made no
+    progress used to be made and undone every round, which moved its two triangles' edges to
+    the end of ``edge`` and could reorder the ``out``/``into`` sets. Only the order in which one
+    sweep of splits meets two T-junctions side by side could tell.)
     """
 
     def __init__(self, xy: NDArray[np.float64], tri: NDArray[np.int64]) -> None:
-        keys = tri.reshape(-1) * len(xy) + tri[:, [1, 2, 0]].reshape(-1)
-        if len(np.unique(keys)) != len(keys):
+        u, v = tri.reshape(-1), tri[:, [1, 2, 0]].reshape(-1)
+        keys = np.sort(u * len(xy) + v)
+        if (keys[1:] == keys[:-1]).any():
             raise ValueError("overlapping cap triangles")
         self.xy = xy
         idx = np.unique(tri)
         self.p: dict[int, tuple[float, float]] = dict(
             zip(idx.tolist(), map(tuple, xy[idx].tolist()), strict=True)
         )
-        self.tris: list[Tri | None] = []
-        #: The slivers among them, kept as triangles change (not found anew over every
-        #: triangle each round: a speckled map's one big cap made that quadratic).
-        self.slivers: set[int] = set()
-        self.edge: dict[tuple[int, int], int] = {}
-        self.out: dict[int, set[int]] = {}
-        self.into: dict[int, set[int]] = {}
-        self._set(*((t, (a, b, c)) for t, (a, b, c) in enumerate(tri.tolist())))
+        tris = [(a, b, c) for a, b, c in tri.tolist()]
+        self.tris: list[Tri | None] = list(tris)
+        #: Directed edge -> its triangle, in the order the edges were made (each triangle's in
+        #: turn: a triangle set anew makes its edges anew, see ``_born``).
+        pairs = zip(u.tolist(), v.tolist(), strict=True)
+        self.edge: dict[Edge, int] = dict(
+            zip(pairs, np.repeat(np.arange(len(tri)), 3).tolist(), strict=True)
+        )
+        self.out: dict[int, set[int]] = _grouped(u, v)
+        self.into: dict[int, set[int]] = _grouped(v, u)
+        #: The slivers among the triangles, kept as triangles change (numpy only shortlists
+        #: them: whether one is a sliver is decided in Python floats, as for later triangles).
+        maybe = np.abs(_twice_areas(xy, tri)) <= 1e-6 * np.max(
+            np.sum((xy[tri[:, [1, 2, 0]]] - xy[tri]) ** 2, axis=2), axis=1, initial=0.0
+        )
+        self.slivers = {t for t in np.flatnonzero(maybe).tolist() if _flat(self.p, tris[t])}
+        #: When each triangle was set, counting triangles set: it orders the edges as ``edge``
+        #: does (one triangle's in the order of :func:`_tri_edges`).
+        self._born = list(range(len(tri)))
+        self._births = len(tri)
+        self._ring: set[Edge] = set()
+        self._ring_places: dict[Edge, int] | None = None
+        # Attempts to make (again), not yet in a sweep's order.
+        self._retry_flip: list[int] = sorted(self.slivers)
+        self._retry_clip: list[int] = list(self._retry_flip)
+        self._retry_split: list[Edge] = []  # (the first ones: see repair)
+        # Failed attempts by the points they watch: slivers that flip, slivers that ear-clip
+        # anew, and edges without a twin (or outline edges missing) that split.
+        self._watch_flip: dict[int, list[int]] = {}
+        self._watch_clip: dict[int, list[int]] = {}
+        self._watch_split: dict[int, list[Edge]] = {}
+        # Attempts to make in the next sweep: of flips, of splits of edges without a twin, of
+        # splits for missing outline edges; and the slivers yet to ear-clip, lowest first.
+        self._flips: set[int] = set()
+        self._lonely: set[Edge] = set()
+        self._missing: set[Edge] = set()
+        self._clips: list[int] = []
+        self._clips_queued: set[int] = set()
+        # While a sweep of splits runs: its start (in births), and the place each edge it
+        # deleted had in its list of edges.
+        self._sweep_start = 0
+        self._moved: dict[Edge, int] | None = None
+        #: Flips, ear clippings and splits tried so far: the work done, which tests check
+        #: grows with the cap, not with the cap times the rounds.
+        self.attempts = 0
 
     def array(self) -> NDArray[np.int64]:
         return np.array([t for t in self.tris if t is not None], dtype=np.int64).reshape(-1, 3)
 
     def _set(self, *changes: tuple[int, Tri | None]) -> None:
         """Put each triangle at its index (appending when new, deleting when None): the old
-        triangles' edges go first, so edges passing from one triangle to another stay."""
+        triangles' edges go first, so edges passing from one triangle to another stay. Attempts
+        watching a corner of an old or new triangle are to be made again, and so are the
+        splits this may call for (an edge that lost its twin, an outline edge gone)."""
+        for t, tri in changes:
+            old = self.tris[t] if t < len(self.tris) else None
+            for corners in (old, tri):
+                if corners is not None:
+                    self._touch(corners)
         for t, _ in changes:
             old = self.tris[t] if t < len(self.tris) else None
-            if old is not None:
-                a, b, c = old
-                for u, v in ((a, b), (b, c), (c, a)):
-                    del self.edge[u, v]
-                    self.out[u].discard(v)
-                    self.into[v].discard(u)
+            if old is None:
+                continue
+            a, b, c = old
+            for k, (u, v) in enumerate(((a, b), (b, c), (c, a))):
+                del self.edge[u, v]
+                self.out[u].discard(v)
+                self.into[v].discard(u)
+                if self._moved is not None and self._born[t] < self._sweep_start:
+                    self._moved.setdefault((u, v), 3 * self._born[t] + k)
+                if (v, u) in self.edge:
+                    self._retry_split.append((v, u))
+                if (u, v) in self._ring:
+                    self._retry_split.append((u, v))
         for t, tri in changes:
             while t >= len(self.tris):
                 self.tris.append(None)
+                self._born.append(-1)
             self.tris[t] = tri
-            if tri is not None and self._sliver(t):
+            if tri is not None and _flat(self.p, tri):
                 self.slivers.add(t)
+                self._retry_flip.append(t)
+                self._retry_clip.append(t)
             else:
                 self.slivers.discard(t)
             if tri is None:
                 continue
+            self._born[t] = self._births
+            self._births += 1
             a, b, c = tri
             for u, v in ((a, b), (b, c), (c, a)):
                 self.edge[u, v] = t
                 self.out.setdefault(u, set()).add(v)
                 self.into.setdefault(v, set()).add(u)
+                if (v, u) not in self.edge:
+                    self._retry_split.append((u, v))
+
+    def _touch(self, corners: Iterable[int]) -> None:
+        """Attempts watching these points are to be made again."""
+        for v in corners:
+            if (flips := self._watch_flip.pop(v, None)) is not None:
+                self._retry_flip += flips
+            if (clips := self._watch_clip.pop(v, None)) is not None:
+                self._retry_clip += clips
+            if (splits := self._watch_split.pop(v, None)) is not None:
+                self._retry_split += splits
 
     def _fits(self, *changes: tuple[int, Tri | None]) -> bool:
         """Whether the changes keep every directed edge in one triangle at most."""
@@ -146,61 +268,71 @@ class _Cap:
         along = ex * dx + ey * dy
         return abs(dx * ey - dy * ex) <= 1e-9 * length2 and 0.0 < along < length2
 
-    def _sliver(self, t: int) -> bool:
-        tri = self.tris[t]
-        if tri is None:
-            return False
-        (ax, ay), (bx, by), (cx, cy) = (self.p[i] for i in tri)
-        cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        longest = max(
-            (bx - ax) ** 2 + (by - ay) ** 2,
-            (cx - bx) ** 2 + (cy - by) ** 2,
-            (ax - cx) ** 2 + (ay - cy) ** 2,
-        )
-        return abs(cross) <= 1e-9 * longest
-
-    def _slivers(self) -> list[int]:
-        """Indices of the slivers (see :meth:`_sliver`), in order."""
-        return sorted(self.slivers)
-
-    def _edges_of(self, t: int) -> tuple[tuple[int, int], ...]:
+    def _edges_of(self, t: int) -> tuple[Edge, ...]:
         tri = self.tris[t]
         return () if tri is None else _tri_edges(tri)
 
     def _flip_slivers(self) -> bool:
-        """Flip every sliver that has a proper triangle across its longest edge."""
+        """Flip every sliver that has a proper triangle across its longest edge (see
+        :meth:`_flip`), sweeping down from the highest index; returns whether any flipped."""
+        todo = self._flips
+        todo.update(self._retry_flip)
+        self._retry_flip.clear()
+        self._flips = set()
+        heap = [-t for t in todo]
+        heapq.heapify(heap)
         changed = False
-        queue = self._slivers()
-        for _ in range(10 * len(self.tris)):
-            if not queue:
-                break
-            t = queue.pop()
-            tri = self.tris[t]
-            if tri is None or not self._sliver(t):
-                continue
-            a, b, c = tri
-            for _rot in range(3):  # rotate so that c -> a is the longest edge
-                if self._between(b, c, a):
-                    break
-                a, b, c = b, c, a
-            else:
-                continue  # two corners at one place: not a sliver to flip
-            t2 = self.edge.get((a, c))
-            other = self.tris[t2] if t2 is not None else None
-            if t2 is None or other is None:
-                continue
-            d = next((v for v in other if v not in (a, c)), b)
-            # Only a flip that makes two triangles with area and no edge twice.
-            flip: tuple[tuple[int, Tri | None], ...] = ((t, (a, b, d)), (t2, (b, c, d)))
-            if d == b or self._between(d, c, a) or not self._fits(*flip):
-                continue
-            self._set(*flip)
-            if self._sliver(t) or self._sliver(t2):
-                self._set((t, (a, b, c)), (t2, other))  # undo: it made no progress
-                continue
-            queue += [t, t2]
-            changed = True
+        while heap:
+            t = -heapq.heappop(heap)
+            if t in self.slivers and self._flip(t):
+                changed = True
+            # What to try again because of this attempt: below it in this sweep, above it
+            # (already swept) in the next.
+            for s in self._retry_flip:
+                if s >= t:
+                    self._flips.add(s)
+                elif s not in todo:
+                    todo.add(s)
+                    heapq.heappush(heap, -s)
+            self._retry_flip.clear()
         return changed
+
+    def _flip(self, t: int) -> bool:
+        """Flip sliver t with the triangle across its longest edge if that makes two triangles
+        with area and no edge twice; else watch the corners of both and return False."""
+        self.attempts += 1
+        tri = self.tris[t]
+        if tri is None:
+            return False
+        a, b, c = tri
+        for _rot in range(3):  # rotate so that c -> a is the longest edge
+            if self._between(b, c, a):
+                break
+            a, b, c = b, c, a
+        else:
+            _watch(self._watch_flip, t, tri)
+            return False  # two corners at one place: not a sliver to flip
+        t2 = self.edge.get((a, c))
+        other = self.tris[t2] if t2 is not None else None
+        if t2 is None or other is None:
+            _watch(self._watch_flip, t, tri)
+            return False
+        d = next((v for v in other if v not in (a, c)), b)
+        flip: tuple[tuple[int, Tri | None], ...] = ((t, (a, b, d)), (t2, (b, c, d)))
+        if d == b or self._between(d, c, a) or not self._fits(*flip):
+            _watch(self._watch_flip, t, (a, b, c, d))
+            return False
+        if _flat(self.p, (a, b, d)) or _flat(self.p, (b, c, d)):
+            # No progress. Such a flip used to be made and undone, which left the sliver's
+            # corners in the turn found above: they are kept so (earcut's turn of a triangle
+            # is what the mesh files hold, and an ear-clipping region's edges are walked in
+            # it, see _retriangulate).
+            if tri != (a, b, c):
+                self._set((t, (a, b, c)))
+            _watch(self._watch_flip, t, (a, b, c, d))
+            return False
+        self._set(*flip)
+        return True
 
     def _split(self, p: int, q: int, w: int) -> bool:
         """Split edge p-q (both triangles at it) at the point w lying on it; a triangle across
@@ -224,47 +356,155 @@ class _Cap:
         self._set(*changes)
         return True
 
-    def _close_t_junctions(self, ring: set[tuple[int, int]]) -> bool:
-        """One pass of splits; returns whether anything changed."""
+    def _split_points(self, p: int, q: int, w: int) -> set[int]:
+        """The points whose triangles decide whether ``_split(p, q, w)`` fits."""
+        return {w, *(i for e in ((p, q), (q, p)) if e in self.edge for i in self._corners(e))}
+
+    def _corners(self, e: Edge) -> Tri:
+        tri = self.tris[self.edge[e]]
+        assert tri is not None  # an edge's triangle is never deleted before the edge
+        return tri
+
+    def _place(self, e: Edge) -> int | None:
+        """Where edge e stands in the list of edges made before the running sweep of splits
+        began (the list a sweep over every edge walks), or None if it is not in it."""
+        if self._moved is not None and (place := self._moved.get(e)) is not None:
+            return place
+        t = self.edge.get(e)
+        if t is None or self._born[t] >= self._sweep_start:
+            return None
+        return 3 * self._born[t] + self._edges_of(t).index(e)
+
+    def _take_splits(self) -> tuple[list[Edge], list[Edge]]:
+        """The splits to try again: edges without a twin (off the outline), and outline edges
+        missing. Others are dropped: what makes one of them a T-junction later retries it."""
+        lonely = [
+            e
+            for e in self._retry_split
+            if e not in self._ring and e in self.edge and (e[1], e[0]) not in self.edge
+        ]
+        missing = [e for e in self._retry_split if e in self._ring and e not in self.edge]
+        self._retry_split.clear()
+        return lonely, missing
+
+    def _close_t_junctions(self) -> bool:
+        """One sweep of splits: edges without a twin in the order of ``edge`` (as listed when
+        the sweep starts: edges made during it wait for the next one), then outline edges
+        missing, in the order of the ring's set. Returns whether anything changed."""
+        lonely, missing = self._lonely, self._missing
+        self._lonely, self._missing = set(), set()
+        new_lonely, new_missing = self._take_splits()
+        lonely.update(new_lonely)
+        missing.update(new_missing)
+        self._sweep_start, self._moved = self._births, {}
+        heap = [(place, e) for e in lonely if (place := self._place(e)) is not None]
+        heapq.heapify(heap)
         changed = False
-        for u, v in list(self.edge):
-            if (u, v) not in self.edge or (v, u) in self.edge or (u, v) in ring:
+        while heap:
+            at, (u, v) = heapq.heappop(heap)
+            if (u, v) not in self.edge or (v, u) in self.edge:
                 continue
+            self.attempts += 1
             # The far side runs u <- w ... or ... w <- v along this edge: split it at w.
             w = next((w for w in self.into.get(u, ()) if self._between(w, u, v)), None)
             if w is None:
                 w = next((w for w in self.out.get(v, ()) if self._between(w, u, v)), None)
-            if w is not None and self._split(u, v, w):
-                changed = True
-        for a, b in ring:
+            if w is None:
+                _watch(self._watch_split, (u, v), (u, v))
+                continue
+            points = self._split_points(u, v, w)
+            if not self._split(u, v, w):
+                _watch(self._watch_split, (u, v), points)
+                continue
+            changed = True
+            # What the split calls for: outline edges in this sweep; other edges in this sweep
+            # if the list it walks has them further on, else in the next.
+            new_lonely, new_missing = self._take_splits()
+            missing.update(new_missing)
+            for e in new_lonely:
+                if (place := self._place(e)) is not None and place > at and e not in lonely:
+                    lonely.add(e)
+                    heapq.heappush(heap, (place, e))
+                else:
+                    self._lonely.add(e)
+        self._moved = None
+        if missing and self._ring_places is None:
+            self._ring_places = {e: i for i, e in enumerate(self._ring)}
+        places = self._ring_places or {}
+        ring_heap = sorted((places[e], e) for e in missing)
+        while ring_heap:
+            at, (a, b) = heapq.heappop(ring_heap)
             if (a, b) in self.edge:
                 continue
+            self.attempts += 1
             # A triangle edge along a -> b, from a past b or from before a to b.
             split = next(((a, v, b) for v in self.out.get(a, ()) if self._between(b, a, v)), None)
             if split is None:
                 split = next(
                     ((u, b, a) for u in self.into.get(b, ()) if self._between(a, u, b)), None
                 )
-            if split is not None and self._split(*split):
-                changed = True
+            if split is None:
+                _watch(self._watch_split, (a, b), (a, b))
+                continue
+            points = self._split_points(*split)
+            if not self._split(*split):
+                _watch(self._watch_split, (a, b), points)
+                continue
+            changed = True
+            new_lonely, new_missing = self._take_splits()
+            self._lonely.update(new_lonely)
+            for e in new_missing:
+                if places[e] > at and e not in missing:
+                    missing.add(e)
+                    heapq.heappush(ring_heap, (places[e], e))
+                else:
+                    self._missing.add(e)
         return changed
 
     def _neighbours(self, t: int) -> set[int]:
         return {t2 for u, v in self._edges_of(t) if (t2 := self.edge.get((v, u))) is not None}
 
-    def _retriangulate(self, seed: int, grow: int) -> bool:
-        """Triangulate anew the slivers connected to sliver ``seed`` and the triangles within
-        ``grow`` steps of them, by strict ear clipping on their boundary. False when that
-        region is not a disk with all its points on its boundary, or has no strict ear."""
+    def _clip_slivers(self) -> bool:
+        """Ear-clip anew around the lowest sliver where that works, growing the region by 1, 2,
+        then 3 steps (see :meth:`_region`); returns whether one was."""
+        for t in self._retry_clip:
+            if t not in self._clips_queued:
+                self._clips_queued.add(t)
+                heapq.heappush(self._clips, t)
+        self._retry_clip.clear()
+        while self._clips:
+            t = self._clips[0]
+            if t in self.slivers:
+                region: set[int] = set()
+                for grow in (1, 2, 3):
+                    region = self._region(t, grow)
+                    if self._retriangulate(region):
+                        return True  # t stays: it has changed, so it is to be tried again
+                _watch(
+                    self._watch_clip, t, {i for s in region for e in self._edges_of(s) for i in e}
+                )
+            heapq.heappop(self._clips)
+            self._clips_queued.discard(t)
+        return False
+
+    def _region(self, seed: int, grow: int) -> set[int]:
+        """The slivers connected to sliver ``seed`` and the triangles within ``grow`` steps of
+        them."""
         region = {seed}
         todo = [seed]
         while todo:
             for t2 in self._neighbours(todo.pop()):
-                if t2 not in region and self._sliver(t2):
+                if t2 not in region and t2 in self.slivers:
                     region.add(t2)
                     todo.append(t2)
         for _ in range(grow):
             region |= {t3 for t in region for t3 in self._neighbours(t)}
+        return region
+
+    def _retriangulate(self, region: set[int]) -> bool:
+        """Triangulate the region anew, by strict ear clipping on its boundary. False when it
+        is not a disk with all its points on its boundary, or has no strict ear."""
+        self.attempts += 1
         inner = {e for t in region for e in self._edges_of(t)}
         outer = [(u, v) for u, v in inner if (v, u) not in inner]
         boundary = dict(outer)
@@ -288,19 +528,32 @@ class _Cap:
 
     def repair(self, ring_edges: NDArray[np.int64], polygon: int) -> None:
         ring = {(int(a), int(b)) for a, b in ring_edges.tolist()}
-        for _ in range(4 * len(ring) + 8):
-            if self._flip_slivers():
-                continue
-            slivers = self._slivers()
-            if any(self._retriangulate(t, grow) for t in slivers for grow in (1, 2, 3)):
-                continue
-            if not self._close_t_junctions(ring):
-                break
+        self._ring = ring
+        # An outline point that earcut left out of every triangle (collinear with its
+        # neighbours) is split into the edge running through it: it needs its place too.
+        left_out = np.setdiff1d(ring_edges, np.fromiter(self.p, dtype=np.int64, count=len(self.p)))
+        self.p.update(zip(left_out.tolist(), map(tuple, self.xy[left_out].tolist()), strict=True))
+        # The first sweep of splits tries every edge without a twin off the outline, and every
+        # outline edge missing (found here with numpy; from then on _set finds them).
         tri = self.array()
-        zeros = np.zeros(len(tri), dtype=np.int64)
+        n = len(self.xy)
+        u, v = tri.reshape(-1), tri[:, [1, 2, 0]].reshape(-1)
+        have = np.sort(u * n + v)
+        outline = ring_edges[:, 0] * n + ring_edges[:, 1]
+        lonely = ~_member(v * n + u, have) & ~_member(u * n + v, np.sort(outline))
+        missing = ring_edges[~_member(outline, have)]
+        for a, b in ((u[lonely], v[lonely]), (missing[:, 0], missing[:, 1])):
+            self._retry_split += zip(a.tolist(), b.tolist(), strict=True)
+        for _ in range(4 * len(ring) + 8):
+            if self._flip_slivers() or self._clip_slivers():
+                continue
+            if not self._close_t_junctions():
+                break
+        done = self.array()
+        zeros = np.zeros(len(done), dtype=np.int64)
         ring_owner = np.zeros(len(ring_edges), dtype=np.int64)
         if _needs_repair(
-            self.xy, tri, zeros, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=1
+            self.xy, done, zeros, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=1
         )[0]:
             raise ValueError(
                 f"polygon {polygon} cannot be triangulated along its own edges"

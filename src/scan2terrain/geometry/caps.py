@@ -83,9 +83,13 @@ def _caps(
     if broken.any():
         fixed = [tri[~broken[owner_of]]]
         owners = [owner_of[~broken[owner_of]]]
-        for k in np.nonzero(broken)[0].tolist():
-            cap = _Cap(xy, tri[owner_of == k])
-            cap.repair(ring_edges[ring_owner == k], k)
+        # Each broken polygon's triangles and outline edges as slices of arrays sorted by
+        # polygon (stably: in their order), not picked out of all of them polygon by polygon.
+        tri_of, tri_at = _by_polygon(owner_of, broken)
+        ring_of, ring_at = _by_polygon(ring_owner, broken)
+        for j, k in enumerate(np.nonzero(broken)[0].tolist()):
+            cap = _Cap(xy, tri[tri_of[tri_at[j] : tri_at[j + 1]]])
+            cap.repair(ring_edges[ring_of[ring_at[j] : ring_at[j + 1]]], k)
             fixed.append(cap.array())
             owners.append(np.full(len(fixed[-1]), k))
         tri, owner_of = np.concatenate(fixed), np.concatenate(owners)
@@ -108,6 +112,18 @@ def _caps(
             " (rings crossing, or a hole outside its exterior)"
         )
     return tri
+
+
+def _by_polygon(
+    owner: NDArray[np.int64], chosen: NDArray[np.bool_]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The items of the chosen polygons (``owner`` numbers each item's polygon), in polygon
+    order and, within one, in their own order; and where each chosen polygon's run starts
+    (one more entry: the end)."""
+    items = np.flatnonzero(chosen[owner])
+    items = items[np.argsort(owner[items], kind="stable")]
+    count = np.bincount(owner[items], minlength=len(chosen))[chosen]
+    return items, np.concatenate([[0], np.cumsum(count)])
 
 
 def _jitter(
