@@ -2,10 +2,11 @@
 
 The rays of one scan from one origin mark their voxels in a bit array of the scan's own: the
 blocks (8 x 8 x 8 voxels) of the bounding box of the origin and the ray ends, with one block of
-margin, row ``((bx * nby) + by) * nbz + bz`` of ``bits`` for block (bx, by, bz) of the box. A row
-is the block's hit words 0..7 and each thread's miss words 8 + 8t .. 15 + 8t, as the dense
-store's bits (_raycast.py). A step of a ray then costs its key arithmetic and one OR: no block
-id, no look-up of the block's slot, no pass to find the blocks first. After the rays, the
+margin, row ``((bx * nby) + by) * nbz + bz`` (8 words, 512 bits) for block (bx, by, bz) of the
+box, in planes: ``bits[0]`` the hits, ``bits[1 + t]`` thread t's misses (each thread writes
+its own memory: no bit lost, no cache line shared). A step of a ray then costs its key
+arithmetic and one OR: no block id, no look-up of the block's slot, no pass to find the
+blocks first. After the rays, the
 blocks with a bit get their slot in the dense store (``alloc_box``, in box order) and one
 log-odds update per marked voxel, hits winning (``apply_box``), as OctoMap's insertPointCloud.
 
@@ -35,9 +36,9 @@ from scan2terrain.octree._table import (
 
 
 @nb.njit(**_JIT)
-def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, word0):
-    """computeRayKeys from o to e (float32), setting each voxel's bit in words ``word0`` ..
-    ``word0 + 7`` of its block's row; False if the ray would leave the box (nothing more set)."""
+def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
+    """computeRayKeys from o to e (float32), setting each voxel's bit in its block's row of
+    ``plane``; False if the ray would leave the box (nothing more set)."""
     res_factor = 1.0 / resolution
     nx, ny, nz = nbk[0] * 8, nbk[1] * 8, nbk[2] * 8
     # Keys relative to the box's corner (lo: a block corner, so block = key >> 3 there too).
@@ -62,7 +63,7 @@ def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, word0):
     while True:
         row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
-        bits[row, word0 + (local >> 6)] |= np.uint64(1) << np.uint64(local & 63)
+        bits[plane, row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
         # The minimum tMax, ties going to the later axis, exactly as computeRayKeys; the axis
         # stepped is checked against the box (one unsigned compare).
         if tx < ty:
@@ -96,19 +97,19 @@ def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, word0):
 def cast_box(origin, ends, kind, resolution, lo, nbk, bits):
     """Every clearing ray's miss bits, on every core: chunks of 256 rays, handed to the threads
     as they ask (numba.parallel_chunksize(1) around the call: a thread whose core is taken by
-    another process holds up one chunk, not a share of the scan); thread t writes its own words
-    8 + 8t .. 15 + 8t (plain ORs, no bit lost). Then every hit's hit bit. Returns how many rays
-    would have left the box (0: the bits are complete)."""
+    another process holds up one chunk, not a share of the scan); thread t writes plane 1 + t.
+    Then every hit's hit bit. Returns how many rays would have left the box (0: the bits are
+    complete)."""
     n = ends.shape[0]
     chunk = 256
     n_chunks = (n + chunk - 1) // chunk
     left = np.zeros(n_chunks, dtype=np.int64)
     ox, oy, oz = origin[0], origin[1], origin[2]
     for c in nb.prange(n_chunks):
-        word0 = 8 + 8 * nb.get_thread_id()
+        plane = 1 + nb.get_thread_id()
         for i in range(c * chunk, min(n, (c + 1) * chunk)):
             if kind[i] & 2 and not _ray(
-                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], resolution, lo, nbk, bits, word0
+                ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], resolution, lo, nbk, bits, plane
             ):
                 left[c] += 1
     res_factor = 1.0 / resolution
@@ -120,7 +121,7 @@ def cast_box(origin, ends, kind, resolution, lo, nbk, bits):
             kz = coord_to_key(np.float64(ends[i, 2]), res_factor) - lo[2]
             row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
             local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
-            bits[row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
+            bits[0, row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
     return left.sum()
 
 
@@ -133,10 +134,11 @@ def alloc_box(
     returns (next row, DONE or NEED_*)."""
     nby, nbz = nbk[1], nbk[2]
     bx0, by0, bz0 = lo[0] >> 3, lo[1] >> 3, lo[2] >> 3
-    for row in range(start, bits.shape[0]):
+    for row in range(start, bits.shape[1]):
         marked = np.uint64(0)
-        for w in range(bits.shape[1]):
-            marked |= bits[row, w]
+        for p in range(bits.shape[0]):
+            for w in range(8):
+                marked |= bits[p, row, w]
         if marked == 0:
             rows[row] = -1
             continue
@@ -150,7 +152,7 @@ def alloc_box(
             block_id(bx, by, bz), bx, by, bz, block_xyz, stamp, table_keys, table_slots,
             counts, touched,
         )  # fmt: skip
-    return bits.shape[0], DONE
+    return bits.shape[1], DONE
 
 
 @nb.njit(parallel=True, **_JIT)
@@ -161,15 +163,15 @@ def apply_box(values, bits, rows, model):
     lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
     hits = 0
     misses = 0
-    for row in nb.prange(bits.shape[0]):
+    for row in nb.prange(bits.shape[1]):
         cs = rows[row]
         if cs < 0:
             continue
         for w in range(8):
-            hit_word = bits[row, w]
+            hit_word = bits[0, row, w]
             any_word = hit_word
-            for p in range(8 + w, bits.shape[1], 8):
-                any_word |= bits[row, p]
+            for p in range(1, bits.shape[0]):
+                any_word |= bits[p, row, w]
             rest = any_word
             while rest:  # each set bit, lowest first
                 bit = rest & (~rest + np.uint64(1))

@@ -187,7 +187,8 @@ class VoxelOctree:
         # Rows are 8 + 8 * threads words: the limit is on blocks, the same for any thread count.
         if blocks > MAX_BOX_BLOCKS or blocks > BOX_BLOCKS_PER_RAY * len(ends):
             return None
-        bits = np.zeros((blocks, 8 + 8 * numba.get_num_threads()), dtype=np.uint64)
+        # Plane 0 the hits, plane 1 + t thread t's misses: a thread writes its own memory.
+        bits = np.zeros((1 + numba.get_num_threads(), blocks, 8), dtype=np.uint64)
         lo_key = lo * 8
         with numba.parallel_chunksize(1):
             left = _raybox.cast_box(o32, ends, kind, self.resolution, lo_key, nbk, bits)
