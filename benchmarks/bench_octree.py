@@ -183,6 +183,8 @@ def warm_up() -> float:
     tree = VoxelOctree(0.1)
     tree.insert_scan(rng.uniform(-3, 3, (500, 3)), (0.0, 0.0, 0.0))
     tree.insert_scan(rng.uniform(-3, 3, (500, 3)), (0.1, 0.2, 0.3), max_range=2.0)
+    # a scan of 4096 rays or more: the parallel path, into the scan's own box of bits
+    tree.insert_scan(rng.uniform(-3, 3, (5000, 3)), (0.0, 0.0, 0.0))
     tree.insert_endpoints(rng.uniform(-3, 3, (500, 3)).astype(np.float32))
     # enough points for the parallel kernels: sparse and dense blocks, then the same again
     ends = np.concatenate([rng.uniform(-30, 30, (100_000, 3)), rng.uniform(-1, 1, (100_000, 3))])

@@ -272,6 +272,7 @@ def test_parallel_insertion_is_deterministic(
         numba.set_num_threads(n)
         results.append(ours_voxels(our_tree(0.05, [fr079])))
     assert [call[6].shape[0] for call in boxed] == [2, 3, 2, 3]  # hits + a plane a thread
+    assert not tree_module._SCRATCH[0].any()  # apply_box cleared every bit it applied
     assert parallel == []
     monkeypatch.setattr(tree_module, "MAX_BOX_BLOCKS", 0)  # no box: the dense store's bits
     for n in (1, 2):
@@ -298,6 +299,7 @@ def test_a_ray_leaving_the_box_casts_the_scan_the_dense_stores_way(
     ours = VoxelOctree(0.1)
     ours.insert_scan(points, origin)
     assert len(parallel) == 1
+    assert not tree_module._SCRATCH[0].any()  # the box's bits left zeroed for the next scan
     ref = octomap_tree(octomap, 0.1, [(points, origin)])
     assert_identical(compare(ours, ref), "6000 rays, box refused")
 

@@ -158,8 +158,9 @@ def alloc_box(
 @nb.njit(parallel=True, **_JIT)
 def apply_box(values, bits, rows, model):
     """OctoMap's updateNodeLogOdds once per marked voxel of the box (a hit where the hit bit is
-    set, else a miss), into the dense store's block ``rows[row]``. Blocks are disjoint, so they
-    go to the cores in parallel. Returns (hits, misses)."""
+    set, else a miss), into the dense store's block ``rows[row]``, clearing the bits (every
+    marked row has a block: the bits are all zero again). Blocks are disjoint, so they go to
+    the cores in parallel. Returns (hits, misses)."""
     lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
     hits = 0
     misses = 0
@@ -169,9 +170,11 @@ def apply_box(values, bits, rows, model):
             continue
         for w in range(8):
             hit_word = bits[0, row, w]
+            bits[0, row, w] = 0
             any_word = hit_word
             for p in range(1, bits.shape[0]):
                 any_word |= bits[p, row, w]
+                bits[p, row, w] = 0
             rest = any_word
             while rest:  # each set bit, lowest first
                 bit = rest & (~rest + np.uint64(1))
