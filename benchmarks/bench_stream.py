@@ -115,7 +115,7 @@ RUNNER = textwrap.dedent(
         from scan2terrain.config import load_config
         from scan2terrain.grids.projection import column_stats
         cfg = load_config(None, {"octree.resolution": res})
-        clouds, _, _ = read_clouds([__import__("pathlib").Path(f) for f in files], cfg)
+        clouds = read_clouds([__import__("pathlib").Path(f) for f in files], cfg).points
         tree = new_tree(cfg)
         for c in clouds:
             tree.insert_endpoints(c)
