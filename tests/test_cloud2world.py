@@ -233,3 +233,26 @@ def test_coarse_height_grid_is_filled_not_a_pin_cushion(
         shares[name] = float((grid == grid.min()).mean())
     assert shares["default"] < 0.4 and abs(shares["default"] - shares["idw"]) < 0.05
     assert shares["1m"] > 0.8
+
+
+@pytest.mark.parametrize("stream", [[], ["--stream"]])
+def test_ground_as_an_occupancy_grid_says_how_to_make_terrain(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stream: list[str]
+) -> None:
+    """Seen: four LAS tiles of a survey made, by default, one 400 x 400 m block of walls with
+    no word why. A grid nearly all occupied gets a note naming --grid height and the z band;
+    the same ground with the z band above it gets none."""
+    g = np.mgrid[0:60:0.25, 0:60:0.25].reshape(2, -1).T + 0.125
+    pts = np.column_stack([g, 0.1 * np.sin(g[:, 0])])
+    pts = np.vstack([pts, [[30.0, 30.0, 1.5]]])  # one post standing up
+    src = tmp_path / "ground.xyz"
+    np.savetxt(src, pts, fmt="%.3f")
+    common = ["--resolution", "0.5", *stream]
+    code, stdout, err = run(capsys, "cloud2world", src, "-o", tmp_path / "w", *common)
+    assert code == 0, err
+    assert "of the grid is occupied" in stdout and "--grid height" in stdout
+    code, stdout, err = run(
+        capsys, "cloud2world", src, "-o", tmp_path / "w2", *common, "--z-min", "1.0"
+    )
+    assert code == 0, err
+    assert "of the grid is occupied" not in stdout

@@ -259,6 +259,23 @@ def refuse_large_grid(
         )
 
 
+#: An occupancy grid from points this full of occupied cells is most likely ground, not walls.
+SOLID_SHARE = 0.9
+
+
+def solid_hint(grid: OccupancyGrid) -> str | None:
+    """A note when a grid made from points or voxels is nearly all occupied (ground counted
+    as obstacle: a survey, or a scan without a z band), which makes one solid block of walls."""
+    occupied = np.count_nonzero(grid.data > 50)
+    if grid.data.size < 10_000 or occupied < SOLID_SHARE * grid.data.size:
+        return None
+    return (
+        f"{occupied / grid.data.size:.0%} of the grid is occupied: the ground counts as an"
+        " obstacle, so the walls are one solid block. --grid height makes terrain of it;"
+        " --z-min/--z-max keep the ground out of an occupancy grid"
+    )
+
+
 def grid_options(cfg: Config) -> None:
     """Before any work, for the commands whose grid comes from voxels or points (octree2world,
     bag2world, cloud2world): refuse what the world they will write cannot be."""

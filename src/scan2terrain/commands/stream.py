@@ -451,7 +451,7 @@ def streamed_world(
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
     from scan2terrain.commands.maps import height_world, occupancy_world
-    from scan2terrain.steps import fill_holes, refuse_large_grid
+    from scan2terrain.steps import fill_holes, refuse_large_grid, solid_hint
 
     tiles = streamed.tiles
     if tiles.points == 0:
@@ -463,7 +463,9 @@ def streamed_world(
     heights = None if grid is not None else tiles.heights(cfg.octree.height_stat)
     tiles.clear()  # the grid holds what the world needs: the tiles' records go before it is made
     if grid is not None:
+        hint = solid_hint(grid)
         result = occupancy_world(grid, source, out, cfg, overwrite=overwrite, start=streamed.start)
+        result.notes += [hint] if hint else []
     else:
         assert heights is not None
         heights = fill_holes(heights, cfg)

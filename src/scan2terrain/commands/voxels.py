@@ -19,6 +19,7 @@ from scan2terrain.steps import (
     new_tree,
     refuse_existing,
     refuse_large_grid,
+    solid_hint,
 )
 from scan2terrain.types import (
     Start,
@@ -131,9 +132,12 @@ def voxels_world(
         grid = projection.project_occupancy(
             keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
         )
-        return occupancy_world(
+        hint = solid_hint(grid)
+        result = occupancy_world(
             grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start
         )
+        result.notes += [hint] if hint else []
+        return result
     stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs)
     if not stats.known.any():
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")

@@ -6,9 +6,9 @@ margin, row ``((bx * nby) + by) * nbz + bz`` (8 words, 512 bits) for block (bx, 
 box, in planes: ``bits[0]`` the hits, ``bits[1 + t]`` thread t's misses (each thread writes
 its own memory: no bit lost, no cache line shared). A step of a ray then costs its key
 arithmetic and one OR: no block id, no look-up of the block's slot, no pass to find the
-blocks first. After the rays, the
-blocks with a bit get their slot in the dense store (``alloc_box``, in box order) and one
-log-odds update per marked voxel, hits winning (``apply_box``), as OctoMap's insertPointCloud.
+blocks first. After the rays, the blocks with a bit get their slot in the dense store
+(``alloc_box``, in box order) and one log-odds update per marked voxel, hits winning
+(``apply_box``, which leaves the bits zeroed), as OctoMap's insertPointCloud.
 
 The voxels visited are computeRayKeys' own (the same arithmetic as ``_raycast._cast``). A ray
 that would step out of the box (rounding can carry a ray a voxel past its end; a block of
