@@ -556,8 +556,9 @@ class _Cap:
             self.xy, done, zeros, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=1
         )[0]:
             raise ValueError(
-                f"polygon {polygon} cannot be triangulated along its own edges"
-                " (rings crossing, or a hole outside its exterior)"
+                f"polygon {polygon} cannot be triangulated along its own edges (rings crossing,"
+                " a hole outside its exterior, or earcut's output on a polygon of thousands of"
+                f" holes, here {len(self.p)} points, beyond repair)"
             )
 
 
