@@ -22,10 +22,8 @@ import math
 import numpy as np
 
 from scan2terrain._numba import numba as nb
-from scan2terrain.octree._raycast import _axis_start, _sign
+from scan2terrain.octree._raycast import _axis_start, _sign, update_word
 from scan2terrain.octree._table import (
-    _DEBRUIJN,
-    _DEBRUIJN_MUL,
     _JIT,
     DONE,
     _room,
@@ -161,7 +159,6 @@ def apply_box(values, bits, rows, model):
     set, else a miss), into the dense store's block ``rows[row]``, clearing the bits (every
     marked row has a block: the bits are all zero again). Blocks are disjoint, so they go to
     the cores in parallel. Returns (hits, misses)."""
-    lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
     hits = 0
     misses = 0
     for row in nb.prange(bits.shape[1]):
@@ -175,19 +172,7 @@ def apply_box(values, bits, rows, model):
             for p in range(1, bits.shape[0]):
                 any_word |= bits[p, row, w]
                 bits[p, row, w] = 0
-            rest = any_word
-            while rest:  # each set bit, lowest first
-                bit = rest & (~rest + np.uint64(1))
-                rest ^= bit
-                local = w * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
-                v = values[cs, local]
-                if math.isnan(v):
-                    v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
-                if hit_word & bit:
-                    v = np.float32(v + lo_hit)
-                    hits += 1
-                else:
-                    v = np.float32(v + lo_miss)
-                    misses += 1
-                values[cs, local] = cmin if v < cmin else (cmax if v > cmax else v)
+            h, m = update_word(values, cs, w, hit_word, any_word, model)
+            hits += h
+            misses += m
     return hits, misses

@@ -461,13 +461,38 @@ def cast_serial(
     return rays.shape[0], DONE
 
 
+@nb.njit(inline="always", **_JIT)
+def update_word(values, cs, w, hit_word, any_word, model):
+    """OctoMap's updateNodeLogOdds once per voxel of word ``w`` of block ``cs`` marked in
+    ``any_word``: a hit where ``hit_word`` has its bit, else a miss. Returns (hits, misses).
+    Shared by the dense store's bits (``apply_blocks``) and a scan's box (_raybox.apply_box)."""
+    lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
+    hits = 0
+    misses = 0
+    rest = any_word
+    while rest:  # each set bit, lowest first: cost follows the marks, not 64 per word
+        bit = rest & (~rest + np.uint64(1))
+        rest ^= bit
+        local = w * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+        v = values[cs, local]
+        if math.isnan(v):
+            v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
+        if hit_word & bit:
+            v = np.float32(v + lo_hit)
+            hits += 1
+        else:
+            v = np.float32(v + lo_miss)
+            misses += 1
+        values[cs, local] = cmin if v < cmin else (cmax if v > cmax else v)
+    return hits, misses
+
+
 @nb.njit(parallel=True, **_JIT)
 def apply_blocks(values, bits, touched, n_touched, model, all_hits):
     """OctoMap's updateNodeLogOdds once per marked voxel of the touched blocks (a hit where the
     hit bit is set, else a miss where any thread's miss bit is set; with ``all_hits``, as for
     end points only, every marked voxel is a hit), then clear the bits.
     Blocks are disjoint, so they go to the cores in parallel. Returns (hits, misses)."""
-    lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
     hits = 0
     misses = 0
     for j in nb.prange(n_touched):
@@ -481,22 +506,7 @@ def apply_blocks(values, bits, touched, n_touched, model, all_hits):
             bits[cs, w] = 0
             if any_word == 0:
                 continue
-            if all_hits:
-                hit_word = any_word
-            rest = any_word
-            while rest:  # each set bit, lowest first: cost follows the marks, not 64 per word
-                bit = rest & (~rest + np.uint64(1))
-                rest ^= bit
-                b = _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
-                local = w * 64 + b
-                v = values[cs, local]
-                if math.isnan(v):
-                    v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
-                if hit_word & bit:
-                    v = np.float32(v + lo_hit)
-                    hits += 1
-                else:
-                    v = np.float32(v + lo_miss)
-                    misses += 1
-                values[cs, local] = cmin if v < cmin else (cmax if v > cmax else v)
+            h, m = update_word(values, cs, w, any_word if all_hits else hit_word, any_word, model)
+            hits += h
+            misses += m
     return hits, misses
