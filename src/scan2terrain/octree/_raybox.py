@@ -38,7 +38,7 @@ def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
     """computeRayKeys from o to e (float32), setting each voxel's bit in its block's row of
     ``plane``; False if the ray would leave the box (nothing more set)."""
     res_factor = 1.0 / resolution
-    nx, ny, nz = nbk[0] * 8, nbk[1] * 8, nbk[2] * 8
+    nx, ny, nz = np.uint64(nbk[0] * 8), np.uint64(nbk[1] * 8), np.uint64(nbk[2] * 8)
     # Keys relative to the box's corner (lo: a block corner, so block = key >> 3 there too).
     kx = coord_to_key(np.float64(ox), res_factor) - lo[0]
     ky = coord_to_key(np.float64(oy), res_factor) - lo[1]
@@ -62,29 +62,22 @@ def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
         row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
         bits[plane, row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
-        # The minimum tMax, ties going to the later axis, exactly as computeRayKeys; the axis
-        # stepped is checked against the box (one unsigned compare).
+        # The minimum tMax, ties going to the later axis, exactly as computeRayKeys.
         if tx < ty:
             if tx < tz:
                 kx += sx
                 tx += ddx
-                if np.uint64(kx) >= np.uint64(nx):
-                    return False
             else:
                 kz += sz
                 tz += ddz
-                if np.uint64(kz) >= np.uint64(nz):
-                    return False
         elif ty < tz:
             ky += sy
             ty += ddy
-            if np.uint64(ky) >= np.uint64(ny):
-                return False
         else:
             kz += sz
             tz += ddz
-            if np.uint64(kz) >= np.uint64(nz):
-                return False
+        if np.uint64(kx) >= nx or np.uint64(ky) >= ny or np.uint64(kz) >= nz:
+            return False  # out of the box (unsigned: below 0 too)
         if kx == ekx and ky == eky and kz == ekz:
             return True
         if min(min(tx, ty), tz) > length:  # noqa: PLW3301 (computeRayKeys' own form)
