@@ -459,15 +459,16 @@ def streamed_world(
     rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
     refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
     counted = tiles.points
-    grid = tiles.occupancy() if cfg.octree.grid == "occupancy" else None
-    heights = None if grid is not None else tiles.heights(cfg.octree.height_stat)
-    tiles.clear()  # the grid holds what the world needs: the tiles' records go before it is made
-    if grid is not None:
+    # The grid holds what the world needs: the tiles' records go before the world is made.
+    if cfg.octree.grid == "occupancy":
+        grid = tiles.occupancy()
+        tiles.clear()
         hint = solid_hint(grid)
         result = occupancy_world(grid, source, out, cfg, overwrite=overwrite, start=streamed.start)
         result.notes += [hint] if hint else []
     else:
-        assert heights is not None
+        heights = tiles.heights(cfg.octree.height_stat)
+        tiles.clear()
         heights = fill_holes(heights, cfg)
         result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
     result.notes[:0] = [*streamed.notes, f"points counted: {counted:,}"]

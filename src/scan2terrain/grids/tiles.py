@@ -237,17 +237,16 @@ class TileSet:
     def records(self) -> TileRecords:
         """The cells with a point, tile by tile: bytes by the cells that hold points, not by
         the area of their tiles (what a Dask task sends back)."""
-        n, t2 = len(self.index), self.lattice.tile**2
+        n = len(self.index)
+        # Tiles get rows 0, 1, ... as they are first met: the index lists them in row order.
         keys = np.array(list(self.index), dtype=np.int64).reshape(n, 2)
-        slots = np.fromiter(self.index.values(), dtype=np.int64, count=n)
-        held = self.cells[:n].reshape(n, t2, 3)[..., 0] > 0
-        slot, cell = np.nonzero(held[slots])  # in the index's order of tiles
+        slot, cell = np.nonzero(self.count[:n] > 0)
         return TileRecords(
             self.lattice,
             keys,
             np.cumsum(np.bincount(slot, minlength=n)),
             cell.astype(np.uint32),
-            self.cells[slots[slot], cell],
+            self.cells[slot, cell],
         )
 
     def merge(self, other: TileSet | TileRecords) -> None:
