@@ -101,3 +101,25 @@ def test_kernels_run_without_numbas_blas_probe_importing_scipy(tmp_path: Path) -
         text=True,
     )
     assert done.stdout.split() == ["False", "3.0"], done.stdout
+
+
+NO_BAG_PROBE = """
+import sys
+from scan2terrain.cli import main
+F, out = sys.argv[1], sys.argv[2]
+assert main(["octree2world", F + "/octomap/scan.dat.bz2", "-o", out + "/a", "-q",
+             "--resolution", "0.2"]) == 0
+print(sorted(m for m in ("rosbags", "mcap") if m in sys.modules))
+"""
+
+
+def test_commands_without_a_bag_import_no_bag_reader(tmp_path: Path) -> None:
+    """rosbags costs about 60 ms to import: a scan file's command (whose scan counts are the
+    same type as a bag's) reads no bag, so it imports none."""
+    done = subprocess.run(
+        [sys.executable, "-c", NO_BAG_PROBE, str(FIXTURES), str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    assert done.stdout.split() == ["[]"], done.stdout

@@ -40,7 +40,7 @@ from scan2terrain.types import (
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
-    from scan2terrain.readers.scans import ScanCounts
+    from scan2terrain.types import ScanCounts
 
 #: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 ScanProgress = Callable[["ScanCounts", int], None]

@@ -213,3 +213,15 @@ class Start:
 
     pose: Pose2D
     why: str
+
+
+@dataclass
+class ScanCounts:
+    """What happened to the scans of a run (for the report)."""
+
+    messages: int = 0
+    inserted: int = 0
+    points: int = 0
+    unposed: int = 0
+    empty: int = 0
+    first_unposed: str = ""

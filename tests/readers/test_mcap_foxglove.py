@@ -17,12 +17,12 @@ from scan2terrain.readers.bag import open_bag
 from scan2terrain.readers.foxglove import Grid, LaserScan, PointCloud, PoseInFrame
 from scan2terrain.readers.scans import (
     BagPlan,
-    ScanCounts,
     occupancy_from_message,
     plan_bag,
     posed_scans,
     read_tf,
 )
+from scan2terrain.types import ScanCounts
 from tests.bagmaker import FoxgloveEncoding, ros_bag_to_foxglove_mcap, write_foxglove_mcap
 from tests.readers.test_mcap_ros1 import EMBARK
 

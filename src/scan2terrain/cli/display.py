@@ -9,7 +9,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from scan2terrain.readers.scans import ScanCounts
+    from scan2terrain.types import ScanCounts
     from scan2terrain.world.folder import Result
 
 

@@ -151,7 +151,8 @@ def bag_octree(
     bag: Bag, cfg: Config, plan: BagPlan, progress: Progress | None = None
 ) -> tuple[VoxelOctree, Ingest]:
     """Every posed scan of the plan inserted into a new octree."""
-    from scan2terrain.readers.scans import ScanCounts, posed_scans
+    from scan2terrain.readers.scans import posed_scans
+    from scan2terrain.types import ScanCounts
 
     tree = new_tree(cfg)
     counts = ScanCounts()
@@ -472,7 +473,8 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
 
 
 def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
-    from scan2terrain.readers.scans import ScanCounts, plan_bag, posed_scans
+    from scan2terrain.readers.scans import plan_bag, posed_scans
+    from scan2terrain.types import ScanCounts
 
     plan = plan_bag(bag, cfg.scans)
     if plan.map_topic is not None:

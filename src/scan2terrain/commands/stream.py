@@ -313,7 +313,8 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
 def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.points import hits_of
-    from scan2terrain.readers.scans import ScanCounts, posed_scans
+    from scan2terrain.readers.scans import posed_scans
+    from scan2terrain.types import ScanCounts
 
     assert job.bag is not None, "a bag chunk needs the bag's plan"
     plan = replace(job.bag.plan, start_ns=chunk.start_ns, end_ns=chunk.end_ns)
@@ -422,7 +423,8 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.points import start_of
-    from scan2terrain.readers.scans import ScanCounts, plan_bag, posed_scans
+    from scan2terrain.readers.scans import plan_bag, posed_scans
+    from scan2terrain.types import ScanCounts
 
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans)

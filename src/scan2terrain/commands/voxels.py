@@ -148,7 +148,7 @@ def voxels_world(
 def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None) -> VoxelOctree:
     """Ray-cast every scan of an OctoMap text scan file into a new octree."""
     from scan2terrain.readers.octomap_scan import read_scans
-    from scan2terrain.readers.scans import ScanCounts
+    from scan2terrain.types import ScanCounts
 
     o = cfg.octree
     tree = new_tree(cfg)

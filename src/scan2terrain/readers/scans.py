@@ -58,7 +58,7 @@ from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import pose6
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
-from scan2terrain.types import HeightGrid, Pose2D, Scan, Transform, normalise_frame
+from scan2terrain.types import HeightGrid, Pose2D, Scan, ScanCounts, Transform, normalise_frame
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
@@ -79,18 +79,6 @@ class BagPlan:
     end_ns: int | None = None
     reasons: list[str] = field(default_factory=list)
     tf: TfBuffer | None = None  #: the bag's tf tree, read once
-
-
-@dataclass
-class ScanCounts:
-    """What happened to the scans of a run (for the report)."""
-
-    messages: int = 0
-    inserted: int = 0
-    points: int = 0
-    unposed: int = 0
-    empty: int = 0
-    first_unposed: str = ""
 
 
 def scan_topics(bag: Bag) -> list[str]:
