@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.exporters._numbers import float_texts
 from scan2terrain.fileio import atomic_write
 
 FORMATS = (".ply", ".pcd", ".xyz", ".csv", ".las", ".laz")
@@ -91,13 +92,13 @@ def points_bytes(points: NDArray[np.float64], suffix: str) -> bytes:
 
 
 def _text_rows(points: NDArray[np.float64], sep: str) -> bytes:
-    """``x<sep>y<sep>z`` lines. One %-format per block of points (C code, no loop per point);
-    ``%r`` of a Python float is its shortest repr, which reads back to the same float64."""
-    line = f"%r{sep}%r{sep}%r\n"
+    """``x<sep>y<sep>z`` lines, numbers as :func:`float_texts`. One %-format per block of
+    points (C code, no loop per point)."""
+    line = f"%s{sep}%s{sep}%s\n"
     blocks = []
-    for start in range(0, len(points), _TEXT_BLOCK):  # bounds the temporary Python floats
-        values = points[start : start + _TEXT_BLOCK].ravel().tolist()
-        blocks.append(((line * (len(values) // 3)) % tuple(values)).encode("ascii"))
+    for start in range(0, len(points), _TEXT_BLOCK):  # bounds the temporary Python strings
+        texts = float_texts(points[start : start + _TEXT_BLOCK])
+        blocks.append(((line * (len(texts) // 3)) % tuple(texts)).encode("ascii"))
     return b"".join(blocks)
 
 
