@@ -5,7 +5,9 @@ before any work (option combinations, grid sizes, output paths)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -336,6 +338,21 @@ def new_tree(cfg: Config) -> VoxelOctree:
     return VoxelOctree(
         octree_resolution(cfg), SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
     )
+
+
+@contextmanager
+def octree_file(
+    resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]
+) -> Iterator[dict[str, Future[bytes]]]:
+    """``{"octree.bt": the .bt bytes}``, made on a second thread while the caller builds the
+    world from the same (unchanged) voxels: the .bt kernels release the GIL, so on two cores
+    the file costs no time; the bytes are the same. The writer waits for them."""
+    from scan2terrain.octree.bt import bt_bytes
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree.bt") as pool:
+        yield {
+            "octree.bt": pool.submit(bt_bytes, resolution=resolution, keys=keys, occupied=occupied)
+        }
 
 
 def grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint8]:

@@ -55,7 +55,7 @@ from scan2terrain.world.terrain import write_terrain
 from scan2terrain.world.walls import walls_world
 
 if TYPE_CHECKING:
-    pass
+    from scan2terrain.world.folder import ExtraFiles
 
 
 def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
@@ -77,7 +77,7 @@ def occupancy_world(
     cfg: Config,
     *,
     overwrite: bool,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     start: Start | None = None,
 ) -> Result:
     """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
@@ -137,7 +137,7 @@ def height_world(
     cfg: Config,
     *,
     overwrite: bool,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     start: Start | None = None,
 ) -> Result:
     """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known

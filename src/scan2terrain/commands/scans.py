@@ -25,7 +25,7 @@ from scan2terrain.commands.voxels import voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
-from scan2terrain.steps import ScanProgress, grid_options, new_tree, refuse_existing
+from scan2terrain.steps import ScanProgress, grid_options, new_tree, octree_file, refuse_existing
 from scan2terrain.types import OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result
 
@@ -80,7 +80,6 @@ def bag2world(
     stream_progress: StreamProgress | None = None,
 ) -> Result:
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
-    from scan2terrain.octree.bt import bt_bytes
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.scans import (
         height_grid_from_message,
@@ -131,18 +130,13 @@ def bag2world(
             return result
         tree, ingest = bag_octree(bag, cfg, plan, progress)
     keys, occupied = tree.occupied_and_free()
-    extra = {"octree.bt": bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)}
-    result = voxels_world(
-        keys,
-        occupied,
-        tree.resolution,
-        source=bag.path,
-        out=out,
-        cfg=cfg,
-        overwrite=overwrite,
-        extra=extra,
-        start=ingest.start,
-    )
+    resolution = tree.resolution
+    del tree  # its store is not needed for the world: free it first
+    with octree_file(resolution, keys, occupied) as extra:
+        result = voxels_world(
+            keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
+            overwrite=overwrite, extra=extra, start=ingest.start,
+        )  # fmt: skip
     result.notes[:0] = ingest.notes
     return result
 
@@ -333,7 +327,6 @@ def cloud2world(
     """Point-cloud files to a world folder: each file one insertion (end points only, or ray
     cast from ``scans.pose`` when ``scans.insert`` is raycast: the cloud is then in the sensor
     frame)."""
-    from scan2terrain.octree.bt import bt_bytes
 
     refuse_existing(out, overwrite, tuple(files))
     grid_options(cfg)
@@ -397,19 +390,13 @@ def cloud2world(
         notes.append(
             f"{sum(outside.values()):,} point(s) {span} dropped, e.g. {n:,} of {path.name}"
         )
-    extra = {"octree.bt": bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)}
-    source = Path(files[0])
-    result = voxels_world(
-        keys,
-        occupied,
-        tree.resolution,
-        source=source,
-        out=out,
-        cfg=cfg,
-        overwrite=overwrite,
-        extra=extra,
-        colours=colours,
-    )
+    resolution = tree.resolution
+    del tree  # its store is not needed for the world: free it first
+    with octree_file(resolution, keys, occupied) as extra:
+        result = voxels_world(
+            keys, occupied, resolution, source=Path(files[0]), out=out, cfg=cfg,
+            overwrite=overwrite, extra=extra, colours=colours,
+        )  # fmt: skip
     result.notes[:0] = notes
     return result
 

@@ -17,6 +17,7 @@ from scan2terrain.steps import (
     fill_holes,
     grid_options,
     new_tree,
+    octree_file,
     refuse_existing,
     refuse_large_grid,
     solid_hint,
@@ -29,6 +30,7 @@ from scan2terrain.world.folder import Result
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.world.folder import ExtraFiles
 
 
 from scan2terrain.commands.maps import height_world, occupancy_world
@@ -47,40 +49,34 @@ def octree2world(
     world folder through octomap_server's 2D projection or a 2.5D height grid. ``progress``
     (scan files only) is called after each scan with the counts so far and a total of 0
     (unknown: the file is read once)."""
-    from scan2terrain.octree.bt import bt_bytes, read_bt
+    from scan2terrain.octree.bt import read_bt
     from scan2terrain.readers.octomap_scan import is_scan_file
 
     refuse_existing(out, overwrite, (source,))
     grid_options(cfg)
     source = Path(source)
-    extra: dict[str, bytes] = {}
     if is_scan_file(source):
         tree = build_octree(source, cfg, progress)
         keys, occupied = tree.occupied_and_free()
         resolution = tree.resolution
-        extra["octree.bt"] = bt_bytes(resolution=resolution, keys=keys, occupied=occupied)
-        runs = None
-    else:
-        from scan2terrain.grids.projection import leaf_columns
+        del tree  # its store is not needed for the world: free it first
+        with octree_file(resolution, keys, occupied) as extra:
+            return voxels_world(
+                keys, occupied, resolution, source=source, out=out, cfg=cfg,
+                overwrite=overwrite, extra=extra,
+            )  # fmt: skip
+    from scan2terrain.grids.projection import leaf_columns
 
-        bt = read_bt(source)
-        # Pruned leaves (a free 256^3 block is common in octomap_server maps) stay vertical runs.
-        try:
-            keys, occupied, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
-        except ValueError as exc:
-            raise InputError(source, f"{exc}: too large to project") from exc
-        resolution = bt.resolution
+    bt = read_bt(source)
+    # Pruned leaves (a free 256^3 block is common in octomap_server maps) stay vertical runs.
+    try:
+        keys, occupied, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
+    except ValueError as exc:
+        raise InputError(source, f"{exc}: too large to project") from exc
     return voxels_world(
-        keys,
-        occupied,
-        resolution,
-        source=source,
-        out=out,
-        cfg=cfg,
-        overwrite=overwrite,
-        extra=extra,
+        keys, occupied, bt.resolution, source=source, out=out, cfg=cfg, overwrite=overwrite,
         runs=runs,
-    )
+    )  # fmt: skip
 
 
 def voxels_world(
@@ -92,7 +88,7 @@ def voxels_world(
     out: Path,
     cfg: Config,
     overwrite: bool,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,

@@ -5,6 +5,8 @@ built by adding notes, never by replacing them."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +88,11 @@ class SimWorld:
     spawn: tuple[float, float, float, float, float, float]  #: the spawn pose in this world
 
 
+#: Files written beside the world (octree.bt, occupied voxels), by name: their bytes, or a Future
+#: of them being made on another thread while the world is built (the writer waits for it).
+ExtraFiles = Mapping[str, "bytes | Future[bytes]"]
+
+
 @dataclass(frozen=True)
 class WorldFolder:
     """Everything a world folder holds, computed; :func:`write_world_folder` writes it."""
@@ -95,7 +102,7 @@ class WorldFolder:
     worlds: list[SimWorld]
     map_out: OccupancyGrid | None  #: the navigation map in world axes, or None
     preview: Preview
-    extra: dict[str, bytes]  #: more files at the top (octree.bt, occupied voxels)
+    extra: ExtraFiles  #: more files at the top (octree.bt, occupied voxels)
 
 
 def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite: bool) -> Result:
@@ -242,7 +249,7 @@ def _write_tail(
     *,
     source: Path,
     preview: Preview,
-    extra: dict[str, bytes] | None,
+    extra: ExtraFiles | None,
 ) -> None:
     """Preview, extra files and the effective config, as every command writes them."""
     import yaml
@@ -253,7 +260,7 @@ def _write_tail(
     if result.spawn is not None and result.worlds:
         od.write(SPAWN_FILE, _spawn_yaml(result))
     for name, data in (extra or {}).items():
-        path = od.write(name, data)
+        path = od.write(name, data if isinstance(data, bytes) else data.result())
         about = EXTRA_ABOUT.get(Path(name).stem)
         if about is not None:
             result.notes.append(f"{about}: {path}")

@@ -18,6 +18,7 @@ from scan2terrain.types import (
     Spawn,
 )
 from scan2terrain.world.folder import (
+    ExtraFiles,
     Result,
     SimWorld,
     WorldFolder,
@@ -40,7 +41,7 @@ def write_terrain(
     map_out: OccupancyGrid | None,
     preview: Preview,
     spawn: Spawn,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     comment_extra: str = "",
 ) -> Result:
     if isinstance(hm, TiledHeightmap):
@@ -97,7 +98,7 @@ def write_tiles(
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: Preview,
-    extra: dict[str, bytes] | None,
+    extra: ExtraFiles | None,
     comment_extra: str,
     spawn: Spawn,
 ) -> Result:

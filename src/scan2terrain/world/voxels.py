@@ -33,6 +33,7 @@ from scan2terrain.octree.keys import KEY_OFFSET
 from scan2terrain.steps import Preview, spawn_for
 from scan2terrain.types import FREE, OCCUPIED, Start
 from scan2terrain.world.folder import (
+    ExtraFiles,
     Result,
     SimWorld,
     WorldFolder,
@@ -70,7 +71,7 @@ def voxel_mesh_world(
     out: Path,
     cfg: Config,
     overwrite: bool,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,

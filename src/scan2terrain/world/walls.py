@@ -27,6 +27,7 @@ from scan2terrain.types import (
     Start,
 )
 from scan2terrain.world.folder import (
+    ExtraFiles,
     Result,
     SimWorld,
     WorldFolder,
@@ -55,7 +56,7 @@ def walls_world(
     *,
     overwrite: bool,
     preview: Preview,
-    extra: dict[str, bytes] | None = None,
+    extra: ExtraFiles | None = None,
     start: Start | None = None,
 ) -> Result:
     """A filtered trinary grid to a world of walls (``world.geometry``: mesh, boxes, polylines).
