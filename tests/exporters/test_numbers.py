@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scan2terrain.exporters._numbers import float_texts
+from scan2terrain.exporters._numbers import float_texts, joined_ints
 
 
 def test_float_texts_are_each_values_repr_in_order() -> None:
@@ -25,3 +25,9 @@ def test_float_texts_of_float32_read_back_to_the_same_float32() -> None:
 
 def test_float_texts_of_nothing() -> None:
     assert float_texts(np.zeros((0, 3))) == []
+
+
+def test_joined_ints_are_the_numbers_one_space_apart() -> None:
+    values = np.array([[0, 7, -3], [123456789012, 1, 2]], dtype=np.int64)
+    assert joined_ints(values) == "0 7 -3 123456789012 1 2"
+    assert joined_ints(np.zeros(0, dtype=np.int64)) == ""

@@ -17,3 +17,10 @@ def float_texts(values: NDArray[np.floating]) -> list[str]:
     texts = np.array([repr(x) for x in bits.view(np.float64).tolist()], dtype=object)
     out: list[str] = texts[index.reshape(-1)].tolist()
     return out
+
+
+def joined_ints(values: NDArray[np.integer]) -> str:
+    """The integers in C order, separated by single spaces (one %-format: C code, about twice
+    as fast as joining their ``str``)."""
+    flat = np.asarray(values).reshape(-1).tolist()
+    return ("%d " * len(flat) % tuple(flat))[:-1]

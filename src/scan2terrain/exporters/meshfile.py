@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.exporters._numbers import float_texts
+from scan2terrain.exporters._numbers import float_texts, joined_ints
 from scan2terrain.geometry.mesh import Mesh
 
 __all__ = [
@@ -247,7 +247,7 @@ def dae_bytes(
         sub(triangles, "input", semantic="NORMAL", source=f"#{ident}-normals", offset="1")
         face_index = np.repeat(group.faces, 3)  # the normal of each corner is its face's
         p = np.stack([mesh.faces[group.faces].reshape(-1), face_index], axis=1).reshape(-1)
-        sub(triangles, "p", " ".join(map(str, p.tolist())))
+        sub(triangles, "p", joined_ints(p))
 
     scenes = sub(root, "library_visual_scenes")
     scene = sub(scenes, "visual_scene", id="Scene", name="Scene")
