@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.geometry._cap_repair import _Cap, _needs_repair, _twice_areas
+from scan2terrain.geometry._cap_tiles import MANY_HOLES, tiled_cap
 from scan2terrain.geometry.contacts import _angles, _SharedPoints
 from scan2terrain.geometry.outlines import ring_area2
 
@@ -21,7 +22,24 @@ def _caps(
     """Counter-clockwise triangles (vertex indices) covering every polygon, whose boundary
     edges are exactly the outline edges (with the sector vertices of :class:`_SharedPoints`):
     a fan for convex polygons without holes, earcut (then repaired, see :class:`_Cap`) for
-    the others."""
+    the others, tile by tile (:func:`tiled_cap`) for those with many holes or whose earcut
+    output is beyond repair."""
+    tri, _, _ = _triangulate(xy, start, owner, shared, tiles=True)
+    return tri
+
+
+def _triangulate(
+    xy: NDArray[np.float64],
+    start: NDArray[np.int64],
+    owner: NDArray[np.int64],
+    shared: _SharedPoints,
+    *,
+    tiles: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+    """:func:`_caps`' triangles, the polygon of each, and which polygons failed. With
+    ``tiles``, none fails (polygons that cannot be triangulated raise ValueError); without
+    (the pieces of a tiled polygon), those whose earcut output cannot be repaired or does
+    not cover their area are left out and reported."""
     import mapbox_earcut
 
     # Rings of one polygon are consecutive: find each polygon's first and last ring.
@@ -49,9 +67,11 @@ def _caps(
     i = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count) + 1
     fans = np.stack([lo, lo + i, lo + i + 1], axis=1)
     fan_owner = np.repeat(np.nonzero(fan)[0], count)
+    # Polygons with many holes are tiled (earcut's hole bridging is quadratic in them).
+    many = (ring_hi - ring_lo > MANY_HOLES + 1) if tiles else np.zeros(n_poly, dtype=bool)
     # Earcut for the others, on jittered local coordinates (see _jitter); every check of its
     # output is done for all polygons at once, the repairs (rare) one polygon at a time.
-    ear_polys = np.nonzero(~fan)[0]
+    ear_polys = np.nonzero(~fan & ~many)[0]
     place = shared.place
     first_vertex = start[ring_lo]
     poly_of_vertex = poly_of_ring[ring]
@@ -74,12 +94,13 @@ def _caps(
     tri = place[tri]
     keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])
     tri, owner_of = tri[keep], owner_of[keep]
-    is_ear = ~fan[poly_of_vertex]
+    is_ear = ~(fan | many)[poly_of_vertex]
     ring_edges = np.stack([place[is_ear], place[nxt[is_ear]]], axis=1)
     ring_owner = poly_of_vertex[is_ear]
     broken = _needs_repair(
         xy, tri, owner_of, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=n_poly
     )
+    failed = np.zeros(n_poly, dtype=bool)
     if broken.any():
         fixed = [tri[~broken[owner_of]]]
         owners = [owner_of[~broken[owner_of]]]
@@ -88,30 +109,79 @@ def _caps(
         tri_of, tri_at = _by_polygon(owner_of, broken)
         ring_of, ring_at = _by_polygon(ring_owner, broken)
         for j, k in enumerate(np.nonzero(broken)[0].tolist()):
-            cap = _Cap(xy, tri[tri_of[tri_at[j] : tri_at[j + 1]]])
-            cap.repair(ring_edges[ring_of[ring_at[j] : ring_at[j + 1]]], k)
+            try:
+                cap = _Cap(xy, tri[tri_of[tri_at[j] : tri_at[j + 1]]])
+                cap.repair(ring_edges[ring_of[ring_at[j] : ring_at[j + 1]]], k)
+            except ValueError:
+                failed[k] = True  # earcut's output beyond repair: tiled below
+                continue
             fixed.append(cap.array())
             owners.append(np.full(len(fixed[-1]), k))
         tri, owner_of = np.concatenate(fixed), np.concatenate(owners)
-    # Each corner at a point several vertices share takes the vertex of its sector.
-    parts = [_sector_corners(xy, np.concatenate([fans, tri]), shared)]
-    owners = [np.concatenate([fan_owner, owner_of])]
-    tri = np.concatenate(parts)
-    polygon = np.concatenate(owners)
     # Each polygon's triangles must add up to exactly its area, none turned over.
+    want = np.bincount(poly_of_ring, ring_area2(xy, start), minlength=n_poly).astype(np.float64)
+    tri = np.concatenate([fans, tri])
+    polygon = np.concatenate([fan_owner, owner_of])
+    bad = _bad_area(xy, tri, polygon, want)
+    if (bad & fan).any():
+        _refuse(int(owner[ring_lo[int(np.argmax(bad & fan))]]))
+    failed |= bad & ~many
+    if failed.any():
+        keep = ~failed[polygon]
+        tri, polygon = tri[keep], polygon[keep]
+    if tiles:
+        # Polygons with many holes, and those earcut failed, tile by tile (on points, as the
+        # repaired ones; the sectors are chosen below for all).
+        extra, extra_owner = [tri], [polygon]
+
+        def pieces(
+            pxy: NDArray[np.float64], pstart: NDArray[np.int64], powner: NDArray[np.int64]
+        ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+            pnxt = np.arange(1, len(pxy) + 1)
+            pnxt[pstart[1:] - 1] = pstart[:-1]
+            pprv = np.empty(len(pxy), dtype=np.int64)
+            pprv[pnxt] = np.arange(len(pxy))
+            return _triangulate(pxy, pstart, powner, _SharedPoints(pxy, pnxt, pprv), tiles=False)
+
+        for k in np.flatnonzero(many | failed).tolist():
+            rings = [
+                np.arange(start[r], start[r + 1], dtype=np.int64)
+                for r in range(int(ring_lo[k]), int(ring_hi[k]))
+            ]
+            done = tiled_cap(xy, rings, place, pieces, int(owner[ring_lo[k]]))
+            extra.append(done)
+            extra_owner.append(np.full(len(done), k, dtype=np.int64))
+        if len(extra) > 1:
+            tri, polygon = np.concatenate(extra), np.concatenate(extra_owner)
+            bad = _bad_area(xy, tri, polygon, want)
+            if bad.any():
+                _refuse(int(owner[ring_lo[int(np.argmax(bad))]]))
+        failed[:] = False
+    # Each corner at a point several vertices share takes the vertex of its sector.
+    return _sector_corners(xy, tri, shared), polygon, failed
+
+
+def _bad_area(
+    xy: NDArray[np.float64],
+    tri: NDArray[np.int64],
+    polygon: NDArray[np.int64],
+    want: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Per polygon: whether its triangles do not add up to exactly its area (twice ``want``),
+    or one is turned over."""
     area2 = _twice_areas(xy, tri)
-    got = np.bincount(polygon, np.abs(area2), minlength=n_poly)
-    want = np.bincount(poly_of_ring, ring_area2(xy, start), minlength=n_poly)
-    bad = ~np.isclose(got, want, rtol=1e-9, atol=1e-12) | (
-        np.bincount(polygon, area2 < 0, minlength=n_poly) > 0
+    got = np.bincount(polygon, np.abs(area2), minlength=len(want))
+    bad: NDArray[np.bool_] = ~np.isclose(got, want, rtol=1e-9, atol=1e-12) | (
+        np.bincount(polygon, area2 < 0, minlength=len(want)) > 0
     )
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise ValueError(
-            f"polygon {int(owner[ring_lo[k]])} cannot be triangulated into its own area"
-            " (rings crossing, or a hole outside its exterior)"
-        )
-    return tri
+    return bad
+
+
+def _refuse(polygon: int) -> None:
+    raise ValueError(
+        f"polygon {polygon} cannot be triangulated into its own area"
+        " (rings crossing, or a hole outside its exterior)"
+    )
 
 
 def _by_polygon(

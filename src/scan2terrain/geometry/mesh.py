@@ -17,8 +17,10 @@ Caps: convex polygons without holes (most wall pieces: rectangles) take a fan; t
 earcut, on points moved by a tiny deterministic jitter (:func:`_jitter`), because outlines are
 full of exactly collinear points (the corners of staircases) on which ear clipping gets stuck and
 drops points. Its output is then checked and, where needed, repaired locally (:class:`_Cap`):
-slivers flipped away, T-junctions split, runs of slivers ear-clipped anew; a polygon that still
-cannot be triangulated along its own edges raises. Every face has area: on a grid, at least half
+slivers flipped away, T-junctions split, runs of slivers ear-clipped anew. Polygons with many
+holes (speckled grids), and those whose earcut output is beyond repair, are cut into tiles first
+(:func:`~scan2terrain.geometry._cap_tiles.tiled_cap`); a polygon that still cannot be
+triangulated along its own edges raises. Every face has area: on a grid, at least half
 a square cell (an eighth for simplified outlines).
 
 Why mapbox-earcut: the caps are polygons with holes (up to thousands of vertices) and earcut is
