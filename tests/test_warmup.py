@@ -3,6 +3,7 @@ signature they use is in numba's cache."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -123,3 +124,20 @@ def test_commands_without_a_bag_import_no_bag_reader(tmp_path: Path) -> None:
         text=True,
     )
     assert done.stdout.split() == ["[]"], done.stdout
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
+def test_openmp_threads_wait_passively_unless_the_user_chose(
+    given: str | None, expected: str
+) -> None:
+    """Spinning OpenMP threads made two threads slower than one while another process held a
+    core; the kernels' numba sets passive waits before OpenMP loads, and leaves a user's
+    choice alone."""
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if given is not None:
+        env["OMP_WAIT_POLICY"] = given
+    probe = "import os, scan2terrain.octree.tree; print(os.environ['OMP_WAIT_POLICY'])"
+    done = subprocess.run(
+        [sys.executable, "-c", probe], env=env, check=True, capture_output=True, text=True
+    )
+    assert done.stdout.strip() == expected

@@ -16,17 +16,10 @@ cached kernels of the modules that use it (their ``__pycache__/*.nbi`` and ``*.n
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 from scan2terrain._numba import numba as nb
-
-# numba tries TBB first; Open3D's wheel ships an older libtbb, and once Open3D is loaded numba
-# finds that one, warns and falls back. OpenMP (then numba's own work queue) unless the user
-# chose a threading layer.
-if not any(k.startswith("NUMBA_THREADING_LAYER") for k in os.environ):
-    nb.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
 
 TREE_MAX_VAL = 32768
 KEY_LIMIT = 65536
