@@ -149,8 +149,7 @@ def _columns(
         if len(top64) and int(top64.max()) > _KEY_MAX:
             raise ValueError(f"runs reach past z key {_KEY_MAX}")
         top = top64.astype(np.uint16)
-    kx = keys16[:, 0].astype(np.intp)
-    ky = keys16[:, 1].astype(np.intp)
+    kx, ky = keys16[:, 0], keys16[:, 1]  # uint16 views: one int array below, not two
     inside: NDArray[np.bool_] | None = None
     if bounds is None:
         kx0, kx1 = int(kx.min()), int(kx.max())
@@ -161,16 +160,20 @@ def _columns(
         x_min, y_min, x_max, y_max = (float(b) for b in bounds)
         kx0, kx1 = _key_range(x_min, x_max, res, "x")
         ky0, ky1 = _key_range(y_min, y_max, res, "y")
-        inside = (kx >= kx0) & (kx <= kx1) & (ky >= ky0) & (ky <= ky1)
+        # The box's key range may lie beyond 0..65535: compare as wider integers.
+        xk, yk = kx.astype(np.int64), ky.astype(np.int64)
+        inside = (xk >= kx0) & (xk <= kx1) & (yk >= ky0) & (yk <= ky1)
+        del xk, yk
     width, height = kx1 - kx0 + 1, ky1 - ky0 + 1
-    kx -= kx0
-    ky -= ky0
-    ky *= width
-    ky += kx
+    flat = ky.astype(np.intp)  # (ky - ky0) * width + kx - kx0, in place
+    flat -= ky0
+    flat *= width
+    flat += kx
+    flat -= kx0
     if inside is not None:
-        ky[~inside] = 0  # any valid cell: callers never let these voxels count
+        flat[~inside] = 0  # any valid cell: callers never let these voxels count
     origin = Pose2D((kx0 - KEY_OFFSET) * res, (ky0 - KEY_OFFSET) * res, 0.0)
-    return _Columns(ky, inside, kz, top, occ, (height, width), origin)
+    return _Columns(flat, inside, kz, top, occ, (height, width), origin)
 
 
 def _key_centres(res: float) -> NDArray[np.float64]:
