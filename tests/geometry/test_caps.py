@@ -128,3 +128,18 @@ def test_speckle_map_to_world(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         # The wall cells' volume, less the slivers that the vertices at diagonal contacts
         # (thousands here) take off as they move 1 % of a cell into their own material.
         assert np.isclose(mesh.volume, walls.sum() * 0.05 * 0.05 * 2.0, rtol=1e-2)
+
+
+def test_edge_keys_stay_distinct_where_packed_keys_overflowed() -> None:
+    """(polygon * n + a) * n + b passed int64 at a few hundred thousand polygons of a 3000^2
+    map; the keys now number the (polygon, from point) pairs first."""
+    from scan2terrain.geometry._cap_repair import _edge_keys
+
+    n = 5_000_000  # points
+    owner = np.array([400_000, 400_000, 400_001, 7], dtype=np.int64)
+    a = np.array([4_999_999, 4_999_999, 4_999_999, 3], dtype=np.int64)
+    b = np.array([1, 2, 1, 4_999_998], dtype=np.int64)
+    assert ((owner * n + a) * n + b < 0).any()  # the old keys wrapped round
+    (keys, again) = _edge_keys(n, (owner, a, b), (owner[::-1], a[::-1], b[::-1]))
+    assert len(np.unique(keys)) == 4 and (keys >= 0).all()
+    assert np.array_equal(again, keys[::-1])  # the same edge, the same key in another group

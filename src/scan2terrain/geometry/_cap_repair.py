@@ -42,16 +42,33 @@ def _needs_repair(
     shared with the triangle across, or misses an outline edge (see :class:`_Cap`)."""
     broken = np.zeros(n_poly, dtype=bool)
     broken[owner[_sliver_mask(xy, tri)]] = True
-    n = len(xy)
     u, v = tri.reshape(-1), tri[:, [1, 2, 0]].reshape(-1)
     tri_owner = np.repeat(owner, 3)
-    have = np.sort((tri_owner * n + u) * n + v)
-    ring = (ring_owner * n + ring_edges[:, 0]) * n + ring_edges[:, 1]
+    forward, backward, ring = _edge_keys(
+        len(xy),
+        (tri_owner, u, v),
+        (tri_owner, v, u),
+        (ring_owner, ring_edges[:, 0], ring_edges[:, 1]),
+    )
+    have = np.sort(forward)
     broken[ring_owner[~_member(ring, have)]] = True
-    lonely = ~_member((tri_owner * n + v) * n + u, have)
-    lonely &= ~_member((tri_owner * n + u) * n + v, np.sort(ring))
+    lonely = ~_member(backward, have)
+    lonely &= ~_member(forward, np.sort(ring))
     broken[tri_owner[lonely]] = True
     return broken
+
+
+def _edge_keys(
+    n: int, *edges: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]
+) -> list[NDArray[np.int64]]:
+    """One int64 key per directed edge (polygon, from point, to point) of each group, equal
+    for equal edges across the groups; points are below ``n``. The (polygon, from point) pairs
+    are numbered densely first: ``(polygon * n + a) * n + b`` overflowed int64 once polygons
+    times n squared passed 9.2e18 (a few hundred thousand polygons on a 3000^2 map)."""
+    starts = [owner * n + a for owner, a, _ in edges]  # < polygons * n: no overflow
+    pairs = np.unique(np.concatenate(starts))
+    ends = [b for _, _, b in edges]
+    return [np.searchsorted(pairs, a) * n + b for a, b in zip(starts, ends, strict=True)]
 
 
 def _member(keys: NDArray[np.int64], sorted_keys: NDArray[np.int64]) -> NDArray[np.bool_]:
