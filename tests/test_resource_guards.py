@@ -12,6 +12,7 @@ import sys
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from scan2terrain.cli import main
@@ -159,3 +160,29 @@ def test_absurd_config_files_are_one_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and what in err[0], err
     assert not (tmp_path / "w").exists()
+
+
+def test_an_octree_over_the_memory_budget_is_refused_not_a_memory_error(tmp_path: Path) -> None:
+    """Free space along long beams fills the octree's dense blocks: a fan of 4,096 beams of
+    400 m at 0.1 m took 5.8 GB. Growing past max_memory is one line naming the settings, exit
+    2, nothing written; a shorter --max-range fits."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    fan = np.column_stack([150 * np.cos(angles), 150 * np.sin(angles), np.zeros(720)])
+    scan = tmp_path / "fan.dat"
+    scan.write_text("NODE 0 0 0 0 0 0\n" + "".join(f"{x} {y} {z}\n" for x, y, z in fan))
+    out = tmp_path / "w"
+    r = run_limited(
+        ["octree2world", str(scan), "-o", str(out), "--resolution", "0.1", "--max-memory", "100"],
+        tmp_path,
+    )
+    assert r.returncode == 2, r.stderr[-500:]
+    (line,) = r.stderr.strip().splitlines()
+    assert str(scan) in line and "over max_memory 100 MiB" in line, line
+    assert "--resolution" in line and "--max-range" in line and "raise --max-memory" in line
+    assert not out.exists()
+    r = run_limited(
+        ["octree2world", str(scan), "-o", str(out), "--resolution", "0.1", "--max-memory", "100",
+         "--max-range", "20", "-q"],
+        tmp_path,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr

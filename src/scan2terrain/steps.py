@@ -331,12 +331,15 @@ def spawn_for(
 
 
 def new_tree(cfg: Config) -> VoxelOctree:
-    """An empty voxel octree with the config's resolution and OctoMap sensor model."""
+    """An empty voxel octree with the config's resolution and OctoMap sensor model, refusing
+    to grow past ``max_memory``."""
     from scan2terrain.octree.tree import SensorModel, VoxelOctree
 
     o = cfg.octree
     return VoxelOctree(
-        octree_resolution(cfg), SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy)
+        octree_resolution(cfg),
+        SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy),
+        max_bytes=cfg.max_memory << 20,
     )
 
 

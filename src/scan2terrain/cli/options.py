@@ -140,7 +140,7 @@ def common(p: argparse.ArgumentParser) -> None:
         type=int,
         dest="max_memory",
         metavar="MIB",
-        help="refuse a grid from voxels or points estimated to need more memory (MiB)",
+        help="refuse an octree or a grid from voxels or points that would need more memory (MiB)",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")

@@ -160,7 +160,10 @@ def bag_octree(
         if start is None:
             start = start_of(scan)
         if batch is not None:
-            batch.add(hits_of(scan))
+            try:
+                batch.add(hits_of(scan))
+            except InputError as exc:
+                raise InputError(bag.path, exc.problem) from exc
         else:
             _insert(tree, scan, bag.path)
         counts.inserted += 1
@@ -168,7 +171,10 @@ def bag_octree(
         if progress is not None:
             progress(counts, total)
     if batch is not None:
-        batch.flush()
+        try:
+            batch.flush()
+        except InputError as exc:
+            raise InputError(bag.path, exc.problem) from exc
     if counts.inserted == 0:
         why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
         raise InputError(

@@ -93,10 +93,18 @@ class VoxelOctree:
         Hit/miss probabilities, clamping and occupancy threshold.
     """
 
-    def __init__(self, resolution: float, model: SensorModel | None = None) -> None:
+    def __init__(
+        self,
+        resolution: float,
+        model: SensorModel | None = None,
+        *,
+        max_bytes: int | None = None,
+    ) -> None:
         if not (resolution > 0 and math.isfinite(resolution)):
             raise ValueError(f"resolution must be a positive number of metres, got {resolution}")
         self.resolution = float(resolution)
+        #: Growing the dense store past this many bytes is refused (InputError); None: no limit.
+        self.max_bytes = max_bytes
         self.model = model or SensorModel()
         m = self.model
         self._hit, self._miss = logodds(m.hit), logodds(m.miss)
@@ -429,6 +437,7 @@ class VoxelOctree:
         n_blocks = int(self._counts[_table.N_BLOCKS])
         if status == _table.NEED_BLOCKS:
             new = max(2 * len(self._bits), n_blocks + 4096)
+            self._check_budget(new)
             # Fresh arrays, only the used rows copied: the tail stays untouched virtual memory
             # (np.empty / np.zeros map pages lazily). A block's values are set to NaN when it is
             # allocated (_fresh_blocks, set_values), its bits are zero from np.zeros.
@@ -453,6 +462,26 @@ class VoxelOctree:
         elif status == _table.NEED_TABLE:
             cap = 1 << max(12, (4 * len(self._bits) - 1).bit_length())
             self._table_keys, self._table_slots = _table.rehash(self._block_xyz, n_blocks, cap)
+
+    def _check_budget(self, blocks: int) -> None:
+        """Refuse to grow the dense store to ``blocks`` blocks when that could take more than
+        ``max_bytes``: the new arrays' capacity (filled as blocks come, it is what the tree
+        reaches before its next growth) and the other arrays as they are. Free space along
+        long beams at a fine resolution is what fills it: about 2.6 KB a block of 512 voxels,
+        the ray touching a dozen of them."""
+        if self.max_bytes is None:
+            return
+        per_block = (self._values, self._bits, self._block_xyz, self._stamp)
+        row = sum(a.nbytes // len(a) for a in per_block)
+        need = self.memory_bytes() - sum(a.nbytes for a in per_block) + blocks * row
+        if need > self.max_bytes:
+            raise InputError(
+                None,
+                f"the octree would take {need / 2**30:.1f} GiB at {self.resolution:g} m, over "
+                f"max_memory {self.max_bytes // 2**20} MiB (free space along long beams takes "
+                "the most): choose a coarser --resolution or a shorter --max-range, or raise "
+                "--max-memory",
+            )
 
     # --- queries --------------------------------------------------------------------------
 
