@@ -174,7 +174,8 @@ def warm_side_by_side() -> float:
     then a pass in this process that loads them all (and compiles whatever the two did not
     leave in the cache, e.g. where both wrote one function's cache index at once)."""
     start = time.perf_counter()
-    if len(os.sched_getaffinity(0)) >= 2:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if (cores or 1) >= 2:
         runs = [
             subprocess.Popen(
                 [sys.executable, "-m", "scan2terrain.warmup", "--parts", ",".join(side)],
