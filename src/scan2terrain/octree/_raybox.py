@@ -26,6 +26,7 @@ from scan2terrain.octree._raycast import _axis_start, _sign, update_word
 from scan2terrain.octree._table import (
     _JIT,
     DONE,
+    WANTED,
     _room,
     _slot,
     block_id,
@@ -135,6 +136,7 @@ def alloc_box(
             continue
         status = _room(1, counts, block_xyz, touched, table_keys)
         if status != DONE:
+            counts[WANTED] = _marked_rows(bits, row)  # at most this many more blocks
             return row, status
         bx = bx0 + row // (nby * nbz)
         by = by0 + (row // nbz) % nby
@@ -144,6 +146,19 @@ def alloc_box(
             counts, touched,
         )  # fmt: skip
     return bits.shape[1], DONE
+
+
+@nb.njit(**_JIT)
+def _marked_rows(bits, start):
+    """Rows from ``start`` on with a bit in some plane."""
+    n = 0
+    for row in range(start, bits.shape[1]):
+        marked = np.uint64(0)
+        for p in range(bits.shape[0]):
+            for w in range(8):
+                marked |= bits[p, row, w]
+        n += marked != 0
+    return n
 
 
 @nb.njit(parallel=True, **_JIT)

@@ -28,6 +28,9 @@ EMPTY = np.int64(-1)
 DONE, NEED_BLOCKS, NEED_TOUCHED, NEED_TABLE = 0, 1, 2, 3
 # counts[] of the insertion kernels: blocks in use, blocks touched this scan, scan stamp.
 N_BLOCKS, N_TOUCHED, STAMP = 0, 1, 2
+#: counts[WANTED]: blocks a kernel that ran out of room still needs at most (0: unknown), so
+#: the store grows once to fit instead of doubling again and again (alloc_box sets it).
+WANTED = 3
 
 _JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
 # Helpers that take arrays and run once per point or voxel are inlined by numba (inline="always"):

@@ -120,7 +120,7 @@ class VoxelOctree:
         self._stamp = np.full(1024, -1, dtype=np.int64)
         self._table_keys = np.full(4096, _table.EMPTY, dtype=np.int64)
         self._table_slots = np.zeros(4096, dtype=np.int32)
-        self._counts = np.zeros(3, dtype=np.int64)  # see _table.N_BLOCKS, N_TOUCHED, STAMP
+        self._counts = np.zeros(4, dtype=np.int64)  # _table.N_BLOCKS, N_TOUCHED, STAMP, WANTED
         self._touched = np.zeros(1024, dtype=np.int64)
         # The sparse store (end points only): voxel and block tables, (voxels, blocks) per region.
         self._vt = np.zeros(16 * _sparse.NREG, dtype=np.int64)
@@ -435,8 +435,14 @@ class VoxelOctree:
         """Make room for the insertion kernels: more blocks, a longer list of blocks touched
         by the scan, or a larger hash table (kept at most half full)."""
         n_blocks = int(self._counts[_table.N_BLOCKS])
-        if status == _table.NEED_BLOCKS:
-            new = max(2 * len(self._bits), n_blocks + 4096)
+        n_touched = int(self._counts[_table.N_TOUCHED])
+        # What the kernel still needs, when it knows (alloc_box): all three grown to fit at
+        # once, not doubled time after time (a growth copies the store into fresh pages, slow to
+        # touch on first use: 30-70 ms of FR-079's first scan at 0.05 m).
+        wanted = int(self._counts[_table.WANTED])
+        self._counts[_table.WANTED] = 0
+        if status == _table.NEED_BLOCKS or n_blocks + wanted > len(self._bits):
+            new = max(2 * len(self._bits), n_blocks + 4096, n_blocks + wanted)
             self._check_budget(new)
             # Fresh arrays, only the used rows copied: the tail stays untouched virtual memory
             # (np.empty / np.zeros map pages lazily). A block's values are set to NaN when it is
@@ -454,12 +460,11 @@ class VoxelOctree:
             stamp = np.full(new, -1, dtype=np.int64)
             stamp[:n_blocks] = self._stamp[:n_blocks]
             self._stamp = stamp
-        elif status == _table.NEED_TOUCHED:
-            n = int(self._counts[_table.N_TOUCHED])
-            touched = np.empty(2 * len(self._touched), dtype=np.int64)
-            touched[:n] = self._touched[:n]
+        if status == _table.NEED_TOUCHED or n_touched + wanted > len(self._touched):
+            touched = np.empty(max(2 * len(self._touched), n_touched + wanted), dtype=np.int64)
+            touched[:n_touched] = self._touched[:n_touched]
             self._touched = touched
-        elif status == _table.NEED_TABLE:
+        if status == _table.NEED_TABLE or 2 * (n_blocks + wanted) > len(self._table_keys):
             cap = 1 << max(12, (4 * len(self._bits) - 1).bit_length())
             self._table_keys, self._table_slots = _table.rehash(self._block_xyz, n_blocks, cap)
 
