@@ -141,3 +141,15 @@ def test_openmp_threads_wait_passively_unless_the_user_chose(
         [sys.executable, "-c", probe], env=env, check=True, capture_output=True, text=True
     )
     assert done.stdout.strip() == expected
+
+
+@pytest.mark.parametrize("args", [["--parts", "bogus"], ["--parts"], ["extra"]])
+def test_warmup_refuses_unknown_arguments_in_one_line(
+    args: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scan2terrain.warmup import main
+
+    assert main(args) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("usage: python -m scan2terrain.warmup")
+    assert main(["--help"]) == 0

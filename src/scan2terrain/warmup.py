@@ -206,10 +206,20 @@ def _warm_las() -> None:
             pass
 
 
+USAGE = f"usage: python -m scan2terrain.warmup [--parts {','.join(PARTS)}]"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    if args[:1] == ["--parts"] and len(args) == 2:  # one side of warm_side_by_side, quietly
-        warm(tuple(args[1].split(",")))
+    if args in (["-h"], ["--help"]):
+        print(USAGE)
+        return 0
+    parts = tuple(args[1].split(",")) if args[:1] == ["--parts"] and len(args) == 2 else ()
+    if args and (not parts or not set(parts) <= set(PARTS)):
+        print(USAGE, file=sys.stderr)
+        return 2
+    if parts:  # one side of warm_side_by_side, quietly
+        warm(parts)
         return 0
     if not cold():  # nothing to do, nothing to say (setup runs this every time)
         return 0
