@@ -17,12 +17,10 @@ margin holds that) is counted, and the caller casts the whole scan again the den
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from scan2terrain._numba import numba as nb
-from scan2terrain.octree._raycast import _axis_start, _sign, update_word
+from scan2terrain.octree._raycast import dda_step, ray_start, update_word
 from scan2terrain.octree._table import (
     _JIT,
     DONE,
@@ -38,45 +36,18 @@ from scan2terrain.octree._table import (
 def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
     """computeRayKeys from o to e (float32), setting each voxel's bit in its block's row of
     ``plane``; False if the ray would leave the box (nothing more set)."""
-    res_factor = 1.0 / resolution
     nx, ny, nz = np.uint64(nbk[0] * 8), np.uint64(nbk[1] * 8), np.uint64(nbk[2] * 8)
+    start = ray_start(ox, oy, oz, ex, ey, ez, resolution)
+    kx, ky, kz, ekx, eky, ekz, sx, sy, sz, tx, ty, tz, ddx, ddy, ddz, length = start
     # Keys relative to the box's corner (lo: a block corner, so block = key >> 3 there too).
-    kx = coord_to_key(np.float64(ox), res_factor) - lo[0]
-    ky = coord_to_key(np.float64(oy), res_factor) - lo[1]
-    kz = coord_to_key(np.float64(oz), res_factor) - lo[2]
-    ekx = coord_to_key(np.float64(ex), res_factor) - lo[0]
-    eky = coord_to_key(np.float64(ey), res_factor) - lo[1]
-    ekz = coord_to_key(np.float64(ez), res_factor) - lo[2]
-    dx = np.float32(ex - ox)
-    dy = np.float32(ey - oy)
-    dz = np.float32(ez - oz)
-    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
-    dx = dx / length
-    dy = dy / length
-    dz = dz / length
-    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
-    tx, ddx = _axis_start(kx + lo[0], sx, ox, dx, resolution)
-    ty, ddy = _axis_start(ky + lo[1], sy, oy, dy, resolution)
-    tz, ddz = _axis_start(kz + lo[2], sz, oz, dz, resolution)
+    kx, ky, kz = kx - lo[0], ky - lo[1], kz - lo[2]
+    ekx, eky, ekz = ekx - lo[0], eky - lo[1], ekz - lo[2]
     nby, nbz = nbk[1], nbk[2]
     while True:
         row = ((kx >> 3) * nby + (ky >> 3)) * nbz + (kz >> 3)
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
         bits[plane, row, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
-        # The minimum tMax, ties going to the later axis, exactly as computeRayKeys.
-        if tx < ty:
-            if tx < tz:
-                kx += sx
-                tx += ddx
-            else:
-                kz += sz
-                tz += ddz
-        elif ty < tz:
-            ky += sy
-            ty += ddy
-        else:
-            kz += sz
-            tz += ddz
+        kx, ky, kz, tx, ty, tz = dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)
         if np.uint64(kx) >= nx or np.uint64(ky) >= ny or np.uint64(kz) >= nz:
             return False  # out of the box (unsigned: below 0 too)
         if kx == ekx and ky == eky and kz == ekz:
@@ -127,11 +98,7 @@ def alloc_box(
     nby, nbz = nbk[1], nbk[2]
     bx0, by0, bz0 = lo[0] >> 3, lo[1] >> 3, lo[2] >> 3
     for row in range(start, bits.shape[1]):
-        marked = np.uint64(0)
-        for p in range(bits.shape[0]):
-            for w in range(8):
-                marked |= bits[p, row, w]
-        if marked == 0:
+        if not _marked(bits, row):
             rows[row] = -1
             continue
         status = _room(1, counts, block_xyz, touched, table_keys)
@@ -148,16 +115,22 @@ def alloc_box(
     return bits.shape[1], DONE
 
 
+@nb.njit(inline="always", **_JIT)
+def _marked(bits, row):
+    """Whether ``row`` of the box has a bit in some plane."""
+    marked = np.uint64(0)
+    for p in range(bits.shape[0]):
+        for w in range(8):
+            marked |= bits[p, row, w]
+    return marked != 0
+
+
 @nb.njit(**_JIT)
 def _marked_rows(bits, start):
     """Rows from ``start`` on with a bit in some plane."""
     n = 0
     for row in range(start, bits.shape[1]):
-        marked = np.uint64(0)
-        for p in range(bits.shape[0]):
-            for w in range(8):
-                marked |= bits[p, row, w]
-        n += marked != 0
+        n += _marked(bits, row)
     return n
 
 

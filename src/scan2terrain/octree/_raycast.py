@@ -49,6 +49,52 @@ def _sign(d):
     return 1 if d > 0.0 else (-1 if d < 0.0 else 0)
 
 
+@nb.njit(inline="always", **_JIT)
+def ray_start(ox, oy, oz, ex, ey, ez, resolution):
+    """computeRayKeys' set-up from o to e (float32): the keys of o and of e, the step of each
+    axis, its tMax and tDelta, and the ray's length (float32). Shared by the two casts (dense
+    store, box of bits); inlined, so a ray costs no call."""
+    res_factor = 1.0 / resolution
+    kx = coord_to_key(np.float64(ox), res_factor)
+    ky = coord_to_key(np.float64(oy), res_factor)
+    kz = coord_to_key(np.float64(oz), res_factor)
+    ekx = coord_to_key(np.float64(ex), res_factor)
+    eky = coord_to_key(np.float64(ey), res_factor)
+    ekz = coord_to_key(np.float64(ez), res_factor)
+    dx = np.float32(ex - ox)
+    dy = np.float32(ey - oy)
+    dz = np.float32(ez - oz)
+    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
+    dx = dx / length
+    dy = dy / length
+    dz = dz / length
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    tx, ddx = _axis_start(kx, sx, ox, dx, resolution)
+    ty, ddy = _axis_start(ky, sy, oy, dy, resolution)
+    tz, ddz = _axis_start(kz, sz, oz, dz, resolution)
+    return kx, ky, kz, ekx, eky, ekz, sx, sy, sz, tx, ty, tz, ddx, ddy, ddz, length
+
+
+@nb.njit(inline="always", **_JIT)
+def dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz):
+    """One step of the DDA along the axis of the minimum tMax, ties going to the later axis,
+    exactly as computeRayKeys (for voxels, and for blocks in flag_blocks)."""
+    if tx < ty:
+        if tx < tz:
+            kx += sx
+            tx += ddx
+        else:
+            kz += sz
+            tz += ddz
+    elif ty < tz:
+        ky += sy
+        ty += ddy
+    else:
+        kz += sz
+        tz += ddz
+    return kx, ky, kz, tx, ty, tz
+
+
 @nb.njit(**_JIT)
 def scan_rays(points, origin, max_range, resolution):
     """OctoMap's computeUpdate, per point: the ray's end and what to do with it.
@@ -165,19 +211,7 @@ def flag_blocks(origin, ends, kind, resolution, dense, box):
                     dense[at] = -2
             if bx == ebx and by == eby and bz == ebz:
                 break
-            if tx < ty:
-                if tx < tz:
-                    bx += sx
-                    tx += ddx
-                else:
-                    bz += sz
-                    tz += ddz
-            elif ty < tz:
-                by += sy
-                ty += ddy
-            else:
-                bz += sz
-                tz += ddz
+            bx, by, bz, tx, ty, tz = dda_step(bx, by, bz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)
 
 
 @nb.njit(**_JIT)
@@ -291,24 +325,8 @@ def _cast(
     the ray and returns False; with it (the serial fallback) such blocks are added (they are
     not entered in ``dense``, so each costs a hash lookup: the fallback is rare).
     """
-    res_factor = 1.0 / resolution
-    kx = coord_to_key(np.float64(ox), res_factor)
-    ky = coord_to_key(np.float64(oy), res_factor)
-    kz = coord_to_key(np.float64(oz), res_factor)
-    ekx = coord_to_key(np.float64(ex), res_factor)
-    eky = coord_to_key(np.float64(ey), res_factor)
-    ekz = coord_to_key(np.float64(ez), res_factor)
-    dx = np.float32(ex - ox)
-    dy = np.float32(ey - oy)
-    dz = np.float32(ez - oz)
-    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
-    dx = dx / length
-    dy = dy / length
-    dz = dz / length
-    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
-    tx, ddx = _axis_start(kx, sx, ox, dx, resolution)
-    ty, ddy = _axis_start(ky, sy, oy, dy, resolution)
-    tz, ddz = _axis_start(kz, sz, oz, dz, resolution)
+    start = ray_start(ox, oy, oz, ex, ey, ez, resolution)
+    kx, ky, kz, ekx, eky, ekz, sx, sy, sz, tx, ty, tz, ddx, ddy, ddz, length = start
     ck, cs = np.int64(-1), np.int64(-1)
     while True:
         # Mark (kx, ky, kz): the origin's voxel first, then each voxel the DDA steps into.
@@ -331,20 +349,7 @@ def _cast(
                 )
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
         bits[cs, plane + (local >> 6)] |= np.uint64(1) << np.uint64(local & 63)
-        # The minimum tMax, ties going to the later axis, exactly as computeRayKeys.
-        if tx < ty:
-            if tx < tz:
-                kx += sx
-                tx += ddx
-            else:
-                kz += sz
-                tz += ddz
-        elif ty < tz:
-            ky += sy
-            ty += ddy
-        else:
-            kz += sz
-            tz += ddz
+        kx, ky, kz, tx, ty, tz = dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)
         if kx == ekx and ky == eky and kz == ekz:
             return True
         if min(min(tx, ty), tz) > length:  # noqa: PLW3301 (computeRayKeys' own form)
