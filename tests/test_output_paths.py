@@ -216,6 +216,7 @@ def test_overwrite_through_a_symlink_replaces_the_folder_it_names(
     real = tmp_path / "real"
     real.mkdir()
     (real / "keep.txt").write_text("old")
+    (real / "scan2terrain.yaml").write_text("an earlier output")
     link = tmp_path / "link"
     link.symlink_to(real)
     assert main(["map2world", str(good), "-o", str(link), "--overwrite", "-q"]) == 0
@@ -250,6 +251,7 @@ def test_every_file_read_is_an_input(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert str(images) in text
     (yamls / "map.yaml").write_text(text)
     (images / "cfg.yaml").write_text("terrain: {height: 1.5}\n")
+    (images / "scan2terrain.yaml").write_text("as if an earlier output: only inputs stop it")
     cases = [
         ["map2world", str(yamls / "map.yaml"), "-o", str(images), "--overwrite"],
         [
@@ -275,4 +277,84 @@ def test_every_file_read_is_an_input(tmp_path: Path, capsys: pytest.CaptureFixtu
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "input" in err[0], err
-        assert sorted(p.name for p in images.iterdir()) == ["cfg.yaml", "map.pgm"]
+        assert sorted(p.name for p in images.iterdir()) == [
+            "cfg.yaml",
+            "map.pgm",
+            "scan2terrain.yaml",
+        ]
+
+
+@pytest.mark.parametrize("command", [c for c in COMMANDS if c != "convert"])  # one file
+def test_overwrite_refuses_a_folder_this_tool_did_not_write(
+    command: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 25 item 9: `-o mydata --overwrite` removed a user's notes and sub-folders. Only a
+    folder holding scan2terrain.yaml (what every world folder holds) is replaced."""
+    box = Sandbox(tmp_path, command)
+    monkeypatch.chdir(box.run)
+    mine = box.run / "mydata"
+    (mine / "deeper").mkdir(parents=True)
+    (mine / "notes.md").write_text("field notes")
+    (mine / "deeper" / "scan.ply").write_text("ply")
+    err = assert_refused(
+        capsys, box, box.argv("mydata", "--overwrite"), "mydata", "not written by scan2terrain"
+    )
+    assert "scan2terrain.yaml" in err and "notes.md" in err
+
+
+def test_overwrite_replaces_its_own_output_and_an_empty_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
+    out = tmp_path / "out"
+    out.mkdir()  # empty: nothing to lose
+    assert main(["map2world", str(good), "-o", str(out), "--overwrite", "-q"]) == 0
+    (out / "extra.txt").write_text("left by the user in an output folder")
+    assert main(["map2world", str(good), "-o", str(out), "--overwrite", "-q"]) == 0
+    capsys.readouterr()
+    assert (out / "scan2terrain.yaml").exists() and not (out / "extra.txt").exists()
+
+
+def test_missing_parent_folders_are_named_when_made(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 25 item 12: `-o /nonexistent/deep/out` does not create folders silently."""
+    good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
+    out = tmp_path / "new" / "deep" / "out"
+    assert main(["map2world", str(good), "-o", str(out), "--simulator", "gz"]) == 0
+    printed = capsys.readouterr().out
+    made = f"{tmp_path / 'new'}, {tmp_path / 'new' / 'deep'}"
+    assert f"Created the missing folders {made} for the output" in printed, printed
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGINT", "SIGHUP"])
+def test_a_run_stopped_while_writing_says_so_and_leaves_nothing(
+    tmp_path: Path,
+    signame: str,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 25 item 10: `kill` (SIGTERM), Ctrl-C or a closed terminal while the world is
+    written: the hidden .part folder is removed at once and stderr says what happened."""
+    import signal
+
+    good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
+    out = tmp_path / "out"
+    real_world_sdf = __import__("scan2terrain.exporters.sdf", fromlist=["x"]).world_sdf
+
+    def stop_here(*a: object, **k: object) -> bytes:
+        os.kill(os.getpid(), getattr(signal, signame))
+        return real_world_sdf(*a, **k)  # type: ignore[no-any-return]
+
+    monkeypatch.setattr("scan2terrain.exporters.sdf.world_sdf", stop_here)
+    before = signal.getsignal(signal.SIGTERM)
+    code = main(["map2world", str(good), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 128 + getattr(signal, signame), err
+    assert err.startswith(f"scan2terrain: interrupted ({signame})") and err.count("\n") == 1
+    assert f"{out} was not written" in err and "nothing half-written is left" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+    assert signal.getsignal(signal.SIGTERM) is before  # main() restores the handlers

@@ -23,7 +23,7 @@ from scan2terrain.exporters import output
 from scan2terrain.exporters.output import TMP_PREFIX, OutputDir, atomic_output
 from tests.conftest import MAPS
 
-FILES = ("world.txt", "models/m/model.sdf", "models/m/meshes/walls.stl")
+FILES = ("scan2terrain.yaml", "world.txt", "models/m/model.sdf", "models/m/meshes/walls.stl")
 
 
 def make_old(target: Path) -> None:

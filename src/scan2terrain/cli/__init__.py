@@ -38,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     # Restored on return: main() is also called in-process (tests, scripts), and the hook
     # must not outlive the command.
     saved, warnings.showwarning = warnings.showwarning, show
+    handlers = _stop_on_signals()
     try:
         code = _run(args)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
@@ -47,9 +48,20 @@ def main(argv: list[str] | None = None) -> int:
         # what it asked for, and every output file is already in place.
         _drop_stdout()
         return 0
-    except KeyboardInterrupt:
-        print("scan2terrain: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        # Raised for Ctrl-C, and for SIGTERM / SIGHUP by _stop_on_signals: the output folder's
+        # writer has removed its hidden .part folder on the way out (only a SIGKILL leaves
+        # one, which the next run in that folder removes).
+        import signal
+
+        name = exc.args[0] if exc.args and isinstance(exc.args[0], str) else "SIGINT"
+        out = getattr(args, "out", None) or getattr(args, "target", None)
+        what = f"{out} was not written or changed; " if out is not None else ""
+        print(
+            f"scan2terrain: interrupted ({name}): {what}nothing half-written is left",
+            file=sys.stderr,
+        )
+        return 128 + int(getattr(signal, name, signal.SIGINT))
     except Exception as exc:
         from scan2terrain.errors import Scan2TerrainError
 
@@ -68,6 +80,35 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         warnings.showwarning = saved
+        _restore_signals(handlers)
+
+
+def _stop_on_signals() -> dict[int, Any]:
+    """Make SIGTERM (``kill``) and SIGHUP (a closed terminal) stop a run as Ctrl-C does, by a
+    KeyboardInterrupt naming the signal, so outputs are cleaned up on the way out. Only from
+    the main thread (signal handlers can be set nowhere else); returns the handlers replaced."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def stop(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    saved = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(sig) == signal.SIG_IGN:  # nohup: the user asked to run on
+            continue
+        saved[sig] = signal.signal(sig, stop)
+    return saved
+
+
+def _restore_signals(saved: dict[int, Any]) -> None:
+    import signal
+
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)
 
 
 def _one_line(exc: BaseException, limit: int = 400) -> str:

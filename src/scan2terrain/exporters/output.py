@@ -38,6 +38,9 @@ from typing import Any
 from scan2terrain.errors import OutputError
 from scan2terrain.fileio import TMP_PREFIX, check_path, locked, sweep, try_lock
 
+#: The file every output folder holds (the effective config): what marks a folder as ours.
+MARKER = "scan2terrain.yaml"
+
 
 class OutputDir:
     """Collects files under a temporary folder; :meth:`commit` moves it to ``target``.
@@ -86,6 +89,8 @@ class OutputDir:
             raise OutputError(f"{target}: exists and is not a folder")
         if real.exists() and not overwrite:
             raise OutputError(f"{target}: output folder exists (use --overwrite to replace it)")
+        if real.exists():
+            refuse_foreign(target, real)
         return real
 
     def write(self, relative: str, data: bytes) -> Path:
@@ -114,6 +119,7 @@ class OutputDir:
                     )
                 if not self.real.is_dir() or self.real.is_symlink():
                     raise OutputError(f"{self.target}: exists and is not a folder")
+                refuse_foreign(self.target, self.real)  # it may have changed while we worked
                 if not _rename(self.tmp, self.real, _RENAME_EXCHANGE):
                     self._replace_aside()
         except OutputError:
@@ -172,6 +178,23 @@ def atomic_output(
     if out.tmp.exists():  # the old folder, after an exchange
         shutil.rmtree(out.tmp, ignore_errors=True)
     out.release()
+
+
+def refuse_foreign(target: Path, real: Path) -> None:
+    """Refuse to replace ``real`` unless it is empty or holds :data:`MARKER` (a folder this
+    tool wrote), naming a few of the entries that would be lost."""
+    try:
+        names = sorted(os.listdir(real))
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot read the folder ({exc.strerror or exc})") from exc
+    if not names or (real / MARKER).is_file():
+        return
+    shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    raise OutputError(
+        f"{target}: exists and was not written by scan2terrain (no {MARKER}; it holds {shown}):"
+        " --overwrite replaces only scan2terrain's own output folders; name a new folder, or"
+        " move this one away first"
+    )
 
 
 # --- renames and locks ------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from scan2terrain.config import Config
 from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
-from scan2terrain.exporters.output import OutputDir, atomic_output
+from scan2terrain.exporters.output import MARKER, OutputDir, atomic_output
 from scan2terrain.steps import Preview
 from scan2terrain.types import (
     OccupancyGrid,
@@ -25,7 +25,7 @@ from scan2terrain.types import (
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 
 
-CONFIG_FILE = "scan2terrain.yaml"
+CONFIG_FILE = MARKER  # scan2terrain.yaml: what marks a folder --overwrite may replace
 
 
 SPAWN_FILE = "spawn.yaml"
@@ -124,6 +124,12 @@ def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite
             )
         _write_tail(
             od, result, cfg, source=folder.source, preview=folder.preview, extra=folder.extra
+        )
+        made = od.made
+    if made:
+        result.notes.append(
+            f"Created the missing folder{'s' if len(made) > 1 else ''} "
+            f"{', '.join(map(str, made))} for the output"
         )
     return result
 
