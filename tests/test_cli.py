@@ -441,3 +441,29 @@ def test_every_error_is_one_line(
     assert err.count("\n") == 1 and len(err) < 600, err
     if kind == "ours":
         assert "first line second line third" in err
+
+
+@pytest.mark.parametrize("name", ["dem_moon_polar_geotiff", "dem_sfbay_squared_geotiff"])
+def test_image2world_refuses_a_dem_and_names_dem2world(tmp_path: Path, name: str) -> None:
+    """Run as a user runs it (no pytest log handler): tifffile's complaint about sfbay's
+    GDAL_NODATA tag must not reach stderr either."""
+    (dem,) = (FIXTURES / "terrain" / name).glob("*.tif")
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "scan2terrain.cli",
+            "image2world",
+            str(dem),
+            "-o",
+            str(tmp_path / "w"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert r.returncode == 2 and r.stdout == ""
+    (line,) = r.stderr.splitlines()
+    assert str(dem) in line and "elevation raster" in line and "dem2world" in line
+    assert leftovers(tmp_path) == []

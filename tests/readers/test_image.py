@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tifffile
 from PIL import Image
 
 from scan2terrain.errors import InputError
@@ -70,3 +71,56 @@ def test_bad_images(tmp_path: Path) -> None:
     Image.fromarray(np.zeros((4, 4), np.float32)).save(tmp_path / "f.tiff")
     with pytest.raises(InputError, match="floating-point"):
         read_grey_image(tmp_path / "f.tiff")
+
+
+# --- elevation rasters are not pictures ---------------------------------------------------------
+
+TERRAIN = Path(__file__).resolve().parents[2] / "fixtures/terrain"
+DEM_FIXTURES = sorted(TERRAIN.glob("*/*.tif"))
+GEO_TAGS = [
+    (33550, "d", 3, (10.0, 10.0, 0.0), True),
+    (33922, "d", 6, (0.0, 0.0, 0.0, 500000.0, 4100000.0, 0.0), True),
+    (34735, "H", 8, (1, 1, 0, 1, 1024, 0, 1, 1), True),
+]
+
+
+@pytest.mark.parametrize("path", DEM_FIXTURES, ids=[p.parent.name for p in DEM_FIXTURES])
+def test_dem_fixtures_are_refused_with_a_pointer_to_dem2world(path: Path) -> None:
+    assert len(DEM_FIXTURES) == 2
+    with pytest.raises(InputError, match=r"elevation raster .*GeoKey.*dem2world") as err:
+        read_grey_image(path)
+    assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("dtype", "tags", "why"),
+    [
+        (np.uint16, GEO_TAGS, "ModelPixelScale"),  # a 2,000 m valley as 16-bit grey levels
+        (np.uint8, GEO_TAGS[:2], "ModelTiepoint"),  # scale + tie point, no GeoKeys
+        (np.uint8, GEO_TAGS[2:], "GeoKeyDirectory"),  # GeoKeys alone
+        (np.int16, [], "signed 16-bit samples"),  # SRTM-style heights, no georeference
+        (np.int32, [], "signed 32-bit samples"),
+        (np.float32, [], "floating-point 32-bit samples"),
+        (np.float64, GEO_TAGS, "ModelPixelScale"),
+    ],
+)
+def test_single_band_elevation_tiffs_are_refused(
+    tmp_path: Path, dtype: type, tags: list[object], why: str
+) -> None:
+    path = tmp_path / "valley.tif"
+    heights = (np.arange(64).reshape(8, 8) * 31).astype(dtype)
+    tifffile.imwrite(path, heights, extratags=tags, photometric="minisblack")
+    with pytest.raises(InputError, match=rf"elevation raster \(.*{why}.*\).*dem2world"):
+        read_grey_image(path)
+
+
+def test_plain_and_colour_tiffs_are_still_pictures(tmp_path: Path) -> None:
+    """A 16-bit grey TIFF without georeference is a heightmap picture; an RGB GeoTIFF (an
+    orthophoto) is a picture too: neither is refused."""
+    g16 = (np.arange(64, dtype=np.uint16).reshape(8, 8) * 1000).astype(np.uint16)
+    tifffile.imwrite(tmp_path / "g.tif", g16, photometric="minisblack")
+    np.testing.assert_array_equal(read_grey_image(tmp_path / "g.tif").values, g16)
+    rgb = np.random.default_rng(3).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    tifffile.imwrite(tmp_path / "o.tif", rgb, photometric="rgb", extratags=GEO_TAGS)
+    luma = np.rint(rgb @ np.array([0.299, 0.587, 0.114]))
+    np.testing.assert_array_equal(read_grey_image(tmp_path / "o.tif").values, luma)

@@ -18,6 +18,7 @@ module adds what Pillow leaves out:
 
 from __future__ import annotations
 
+import logging
 import struct
 import warnings
 import zlib
@@ -54,15 +55,27 @@ class Channels:
         return mean / self.max_value
 
 
-def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
-    """Decode ``path`` into :class:`Channels`, refusing bombs, truncation and non-images."""
+def open_pixels(
+    path: Path, max_pixels: int = DEFAULT_MAX_PIXELS, *, pictures_only: bool = False
+) -> Channels:
+    """Decode ``path`` into :class:`Channels`, refusing bombs, truncation and non-images, and
+    with ``pictures_only`` elevation rasters too (:func:`elevation_raster`): their samples are
+    heights in metres, which grey levels would scale to ``terrain.height``."""
     from PIL import Image, UnidentifiedImageError
 
     regular_file(path, "image file")
     try:
         with path.open("rb") as f:
-            if f.read(len(_PNG_SIGNATURE)) == _PNG_SIGNATURE:
+            magic = f.read(len(_PNG_SIGNATURE))
+            if magic == _PNG_SIGNATURE:
                 _check_png(path, f)
+        why = elevation_raster(path) if pictures_only and magic[:4] in _TIFF_MAGIC else None
+        if why is not None:
+            raise InputError(
+                path,
+                f"an elevation raster ({why}), not a picture: its samples are heights, "
+                "make terrain of it with `scan2terrain dem2world`",
+            )
         with warnings.catch_warnings():
             # We apply our own pixel limit below, before decoding.
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -96,6 +109,72 @@ def open_pixels(path: Path, max_pixels: int = DEFAULT_MAX_PIXELS) -> Channels:
         raise InputError(
             path, f"cannot decode image (corrupt?): {type(exc).__name__}: {text}"
         ) from exc
+
+
+#: TIFF tags that georeference a raster (GeoTIFF), by name.
+_GEO_TAGS = {
+    33550: "ModelPixelScale",
+    33922: "ModelTiepoint",
+    34264: "ModelTransformation",
+    34735: "GeoKeyDirectory",
+}
+_SAMPLE_KINDS = {2: "signed", 3: "floating-point"}
+#: Little- and big-endian TIFF and BigTIFF.
+_TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
+
+
+def elevation_raster(path: Path) -> str | None:
+    """Why the TIFF ``path`` is an elevation raster (a DEM) rather than a picture, or None.
+
+    Its first page is one when it is one band of grey (not colour, not a palette) and is
+    georeferenced (any GeoTIFF tag) or holds signed or floating-point samples (pictures are
+    unsigned; DEMs are int16, float32 or float64, which Pillow cannot even open). A colour
+    GeoTIFF (an orthophoto) stays a picture. Only the tags are read (tifffile), not the pixels;
+    a TIFF whose tags cannot be read is left to the decoder to refuse.
+    """
+    import tifffile
+
+    # tifffile logs what it cannot parse (GDAL's float32 nodata value): library code never prints.
+    log = logging.getLogger("tifffile")
+    log.addFilter(_drop)
+    try:
+        with tifffile.TiffFile(path) as tif:
+            tags = {int(t.code): t.value for t in tif.pages[0].tags.values()}
+    except Exception as exc:
+        # Tags tifffile cannot read: the decoding that follows says what is wrong with the file.
+        expected = tifffile.TiffFileError | OSError | ValueError | EOFError | IndexError
+        if isinstance(exc, expected) or raised_in(exc, ("tifffile",)):
+            return None
+        raise
+    finally:
+        log.removeFilter(_drop)
+    if _tag_int(tags.get(277, 1)) != 1 or _tag_int(tags.get(262)) not in (0, 1):
+        return None  # colour, palette, or not grey (0 MinIsWhite, 1 MinIsBlack)
+    found = [name for code, name in _GEO_TAGS.items() if code in tags]
+    if found:
+        return "GeoTIFF with " + ", ".join(found) + " tags"
+    kind = _SAMPLE_KINDS.get(_tag_int(tags.get(339, 1)) or 1)
+    if kind is None:
+        return None
+    bits = _tag_int(tags.get(258))
+    return f"{kind} {bits}-bit samples" if bits else f"{kind} samples"
+
+
+def _drop(record: logging.LogRecord) -> bool:
+    """A logging filter that lets nothing through."""
+    return False
+
+
+def _tag_int(value: object) -> int | None:
+    """A TIFF tag's first value as an int, or None (absent, or not a number: a corrupt tag)."""
+    if isinstance(value, tuple):
+        value = value[0] if value else None
+    if not isinstance(value, int | float | str):
+        return None
+    try:
+        return int(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -32,10 +32,11 @@ def read_grey_image(path: Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Grey
 
     Colour images become ``0.299 R + 0.587 G + 0.114 B`` rounded to the stored depth; grey images
     are kept as they are, 16-bit included. An alpha channel is ignored: a transparent pixel keeps
-    the height of its colour.
+    the height of its colour. An elevation raster (a GeoTIFF, or one band of signed or
+    floating-point samples) is refused with a pointer to dem2world: its heights are metres.
     """
     path = Path(path)
-    ch = open_pixels(path, max_pixels)
+    ch = open_pixels(path, max_pixels, pictures_only=True)
     dtype = np.uint16 if ch.max_value == 65535 else np.uint8
     if ch.colour.shape[2] == 1:
         values = np.ascontiguousarray(ch.colour[..., 0])
