@@ -185,3 +185,35 @@ def test_image_world_heights(tmp_path: Path) -> None:
         ox, oy = w.placement.offset
         got = terrain_height(col, x - ox, y - oy, w.placement.simulator)
         np.testing.assert_allclose(got, src / 255 * 12.0, atol=0.01 * 12.0)
+
+
+#: The systems a robot needs in a gz-sim world (gz-sim's examples/worlds/sensors.sdf and its
+#: default server.config), by file and class name. A world that lists any system gets only
+#: those, so physics, commands and the scene broadcaster are listed with the sensors. gz-sim 7+
+#: reads these names, and Fortress from 6.16 maps ``gz-sim-`` to ``ignition-gazebo-``
+#: (SystemLoader.cc) and aliases every ``gz::sim::systems::`` class.
+ROBOT_SYSTEMS = {
+    "gz-sim-physics-system": "gz::sim::systems::Physics",
+    "gz-sim-user-commands-system": "gz::sim::systems::UserCommands",
+    "gz-sim-scene-broadcaster-system": "gz::sim::systems::SceneBroadcaster",
+    "gz-sim-sensors-system": "gz::sim::systems::Sensors",
+    "gz-sim-imu-system": "gz::sim::systems::Imu",
+}
+
+
+@pytest.mark.parametrize("geometry", ["heightmap", "mesh", "boxes", "polylines"])
+def test_gz_worlds_load_the_systems_a_robot_needs(tmp_path: Path, geometry: str) -> None:
+    """Issue 25 item 11: a spawned robot's lidar published nothing (no Sensors system)."""
+    from lxml import etree
+
+    result = build(MAPS["tb3"], tmp_path / "w", **{"world.geometry": geometry})
+    for w in result.worlds:
+        world = etree.parse(str(w.world)).getroot().find("world")
+        assert world is not None
+        plugins = {p.get("filename"): p for p in world.findall("plugin")}
+        if w.placement.simulator == "classic":
+            assert plugins == {}  # Classic loads its sensors and physics itself
+            continue
+        assert {f: p.get("name") for f, p in plugins.items()} == ROBOT_SYSTEMS
+        assert plugins["gz-sim-sensors-system"].findtext("render_engine") == "ogre2"
+        probe_world(w.world, [w.models], tmp_path)  # SDFormat's parser still takes it

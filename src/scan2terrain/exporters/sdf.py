@@ -51,6 +51,18 @@ GZ_TEXTURE_COLOURS = {
     "obstacle": (95, 70, 55),
     "normal": (128, 128, 255),
 }
+#: The systems a gz-sim world loads (file, class, options): a world that lists any system gets
+#: only those, so physics, entity creation (the spawn service), the scene broadcaster (the GUI)
+#: are listed with the sensors (lidars and cameras render with ogre2) and the IMU, as in
+#: gz-sim's examples/worlds/sensors.sdf. gz-sim 7+ names; Fortress maps them from 6.16 on
+#: (``gz-sim-`` -> ``ignition-gazebo-`` in SystemLoader.cc, ``gz::sim::systems::`` aliases).
+GZ_SYSTEMS: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
+    ("gz-sim-physics-system", "gz::sim::systems::Physics", ()),
+    ("gz-sim-user-commands-system", "gz::sim::systems::UserCommands", ()),
+    ("gz-sim-scene-broadcaster-system", "gz::sim::systems::SceneBroadcaster", ()),
+    ("gz-sim-sensors-system", "gz::sim::systems::Sensors", (("render_engine", "ogre2"),)),
+    ("gz-sim-imu-system", "gz::sim::systems::Imu", ()),
+)
 TEXTURE_DIR = "materials/textures"
 HEIGHTMAP_FILE = "heightmap.png"
 
@@ -204,6 +216,10 @@ def tiled_world_sdf(placements: Sequence[Placement], *, world_name: str, comment
         _sub(physics, "max_step_size", "0.001")
         _sub(physics, "real_time_factor", "1")
         _sub(_sub(physics, "dart"), "collision_detector", "bullet")
+        for filename, name, options in GZ_SYSTEMS:
+            plugin = _sub(world, "plugin", filename=filename, name=name)
+            for key, value in options:
+                _sub(plugin, key, value)
     else:
         physics = _sub(world, "physics", name="ode", type="ode")
         _sub(physics, "max_step_size", "0.001")
