@@ -165,9 +165,21 @@ def test_warehouse_reads_non_default_fields() -> None:
             "thresholds out of order",
         ),
         (
-            "image: m.png\nresolution: 0.1\norigin: [0, zero]\nnegate: 0\n"
+            "image: m.png\nresolution: 0.1\norigin: [0, zero, 0]\nnegate: 0\n"
             "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
             "'origin' must hold numbers",
+        ),
+        # nav2's loadMapYaml: "value of the 'origin' tag should have 3 elements"; ROS1's
+        # map_server reads origin[2] and fails without it.
+        (
+            "image: m.png\nresolution: 0.1\norigin: [1.5, -2]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            r"'origin' must be \[x, y, yaw\] \(3 numbers, as nav2's map_server requires\), not 2",
+        ),
+        (
+            "image: m.png\nresolution: 0.1\norigin: [1.5, -2, 0, 0]\nnegate: 0\n"
+            "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+            r"'origin' must be \[x, y, yaw\] .*, not 4",
         ),
         (
             "image: m.png\nresolution: 0.1\norigin: 3\nnegate: 0\n"

@@ -138,15 +138,21 @@ def read_map_metadata(path: Path) -> MapMetadata:
         raise InputError(path, f"'resolution' must be > 0 metres per pixel, got {resolution}")
 
     origin_field = _required(doc, "origin", path)
-    if not isinstance(origin_field, list) or len(origin_field) not in (2, 3):
+    if not isinstance(origin_field, list):
         raise InputError(path, "'origin' must be a list [x, y, yaw]")
+    if len(origin_field) != 3:
+        # nav2's loadMapYaml refuses any other length, and ROS1's map_server reads origin[2].
+        raise InputError(
+            path,
+            "'origin' must be [x, y, yaw] (3 numbers, as nav2's map_server requires), not "
+            f"{len(origin_field)}",
+        )
     try:
-        ox, oy, *rest = (float(v) for v in origin_field)
+        ox, oy, yaw = (float(v) for v in origin_field)
     except (TypeError, ValueError):
         raise InputError(path, "'origin' must hold numbers [x, y, yaw]") from None
     except OverflowError:  # an integer beyond any float
         raise InputError(path, "'origin' must hold finite numbers") from None
-    yaw = rest[0] if rest else 0.0
     if not all(math.isfinite(v) for v in (ox, oy, yaw)):
         raise InputError(path, "'origin' must hold finite numbers")
 
