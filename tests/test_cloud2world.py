@@ -256,3 +256,50 @@ def test_ground_as_an_occupancy_grid_says_how_to_make_terrain(
     )
     assert code == 0, err
     assert "of the grid is occupied" not in stdout
+
+
+@pytest.mark.parametrize("stream", [[], ["--stream"]])
+def test_small_ground_grid_gets_the_solid_note_too(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stream: list[str]
+) -> None:
+    """Seen: a 3 x 3 m field (900 cells at 0.1 m, 96% occupied) became one solid block with no
+    note, because the note skipped grids under 10,000 cells. A field of a few hundred cells
+    gets it; a post of a few cells (its own footprint is its grid, all of it occupied) does
+    not."""
+    rng = np.random.default_rng(5)
+    g = np.mgrid[0:3:0.05, 0:3:0.05].reshape(2, -1).T + 0.025
+    keep = ~((g[:, 0] > 1.0) & (g[:, 0] < 1.3) & (g[:, 1] > 1.0) & (g[:, 1] < 1.4))  # a hole
+    field = np.column_stack([g[keep], rng.uniform(0.01, 0.04, int(keep.sum()))])
+    src = tmp_path / "field.xyz"
+    np.savetxt(src, field, fmt="%.3f")
+    common = ["--resolution", "0.1", *stream]
+    code, stdout, err = run(capsys, "cloud2world", src, "-o", tmp_path / "w", *common)
+    assert code == 0, err
+    share = re.search(r"(\d+)% of the grid is occupied", stdout)
+    assert share is not None, stdout
+    assert 90 <= int(share.group(1)) < 100 and "--grid height" in stdout
+    post = np.column_stack([np.full(40, 0.05), np.full(40, 0.05), np.linspace(0, 4, 40)])
+    src = tmp_path / "post.xyz"
+    np.savetxt(src, post, fmt="%.3f")
+    code, stdout, err = run(capsys, "cloud2world", src, "-o", tmp_path / "p", *common)
+    assert code == 0, err
+    assert "of the grid is occupied" not in stdout
+
+
+def test_solid_note_starts_at_a_handful_of_cells() -> None:
+    """Nine cells all occupied (a post's own footprint) get no note; ten get it, and stay
+    over the share with one free cell, not with two."""
+    from scan2terrain.steps import SOLID_MIN_CELLS, solid_hint
+    from scan2terrain.types import OccupancyGrid, Pose2D
+
+    def hint(data: np.ndarray) -> str | None:
+        return solid_hint(OccupancyGrid(data.astype(np.int8), 0.1, Pose2D(0.0, 0.0)))
+
+    assert SOLID_MIN_CELLS == 10
+    assert hint(np.full((3, 3), 100)) is None
+    ten = np.full((2, 5), 100)
+    assert hint(ten) is not None and "100% of the grid is occupied" in str(hint(ten))
+    ten[0, 0] = 0
+    assert "90% of the grid is occupied" in str(hint(ten))
+    ten[0, 1] = -1
+    assert hint(ten) is None

@@ -263,13 +263,18 @@ def refuse_large_grid(
 
 #: An occupancy grid from points this full of occupied cells is most likely ground, not walls.
 SOLID_SHARE = 0.9
+#: ... once it has this many cells. Fewer cannot be 90% full without being full (one cell is
+#: over a tenth of them), and a grid that small is one small object seen alone (a post, a
+#: pole), which fills its own footprint: its walls are right, and terrain would not help.
+SOLID_MIN_CELLS = 10
 
 
 def solid_hint(grid: OccupancyGrid) -> str | None:
     """A note when a grid made from points or voxels is nearly all occupied (ground counted
-    as obstacle: a survey, or a scan without a z band), which makes one solid block of walls."""
+    as obstacle: a survey, or a scan without a z band), which makes one solid block of walls;
+    any grid of ``SOLID_MIN_CELLS`` or more (a 3 x 3 m field at 0.1 m is 900 cells)."""
     occupied = np.count_nonzero(grid.data > 50)
-    if grid.data.size < 10_000 or occupied < SOLID_SHARE * grid.data.size:
+    if grid.data.size < SOLID_MIN_CELLS or occupied < SOLID_SHARE * grid.data.size:
         return None
     return (
         f"{occupied / grid.data.size:.0%} of the grid is occupied: the ground counts as an"
