@@ -171,6 +171,46 @@ def test_pcd_binary_types_and_padding(tmp_path: Path) -> None:
     assert cloud.records == 5
 
 
+@pytest.mark.parametrize("data", ["ascii", "binary"])
+def test_pcd_field_names_in_any_case(tmp_path: Path, data: str) -> None:
+    """``FIELDS X Y Z RGB`` (as some writers spell them; CSV headers are read so too) gives the
+    points and colours ``x y z rgb`` would; an exact lower-case name wins over another case."""
+    xyz = np.array([[1.5, -2.25, 3.0], [500000.125, 4.0, -0.5]])
+    packed = np.array([0xFF102030, 0xFFA0B0C0], dtype=np.uint32)
+    rec = np.zeros(2, dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("rgb", "<u4")])
+    rec["x"], rec["y"], rec["z"], rec["rgb"] = *xyz.T, packed
+    rows = "".join(f"{a!r} {b!r} {c!r} {int(d)}\n" for a, b, c, d in rec.tolist())
+    body = rows.encode() if data == "ascii" else rec.tobytes()
+    for fields in ("X Y Z RGB", "X y Z Rgb"):
+        path = tmp_path / f"{fields.replace(' ', '')}.pcd"
+        head = pcd_header(fields, "8 8 8 4", "F F F U", "1 1 1 1", w=2, h=1, data=data)
+        path.write_bytes(head.encode() + body)
+        cloud = read_cloud(path, colours=True)
+        np.testing.assert_array_equal(cloud.points, xyz)
+        np.testing.assert_array_equal(cloud.colours, [[0x10, 0x20, 0x30], [0xA0, 0xB0, 0xC0]])
+    # "x" and "X" both: the lower-case one is x (PCL's names are lower case)
+    both = pcd_header("X x y z", "8 8 8 8", "F F F F", "1 1 1 1", w=1, h=1, data="ascii")
+    (tmp_path / "both.pcd").write_text(both + "9 1 2 3\n")
+    np.testing.assert_array_equal(read_cloud(tmp_path / "both.pcd").points, [[1.0, 2.0, 3.0]])
+    # binary_compressed goes through Open3D, which knows only lower-case names
+    import open3d
+
+    pc = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(xyz))
+    pc.colors = open3d.utility.Vector3dVector(np.array([[16, 32, 48], [160, 176, 192]]) / 255)
+    open3d.io.write_point_cloud(str(tmp_path / "lzf.pcd"), pc, compressed=True)
+    raw = (tmp_path / "lzf.pcd").read_bytes()
+    assert raw.count(b"FIELDS x y z rgb\n") == 1
+    (tmp_path / "LZF.pcd").write_bytes(raw.replace(b"FIELDS x y z rgb", b"FIELDS X Y Z RGB"))
+    cloud = read_cloud(tmp_path / "LZF.pcd", colours=True)
+    np.testing.assert_array_equal(cloud.points, read_cloud(tmp_path / "lzf.pcd").points)
+    np.testing.assert_array_equal(cloud.colours, [[16, 32, 48], [160, 176, 192]])
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("LZF")) == ["LZF.pcd"]
+    # no field of any case
+    (tmp_path / "none.pcd").write_text(both.replace("X x", "W w") + "9 1 2 3\n")
+    with pytest.raises(InputError, match="PCD has no field x"):
+        read_cloud(tmp_path / "none.pcd")
+
+
 def test_pcd_binary_compressed_written_by_open3d(tmp_path: Path) -> None:
     import open3d
 

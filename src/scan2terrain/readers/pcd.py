@@ -1,5 +1,8 @@
 """PCD files (``DATA ascii``, ``binary``, ``binary_compressed``) -> float64 points, and on request
-the colours of an ``rgb`` or ``rgba`` field.
+the colours of an ``rgb`` or ``rgba`` field. Field names are PCL's lower-case ``x y z rgb``; a
+field spelt in another case (``X Y Z``, as some writers do; CSV headers are read so too) is
+taken where no lower-case one of that name exists (Open3D, for ``binary_compressed``, is given
+the names in lower case).
 
 The header is parsed and checked here and the data decoded with numpy (a structured dtype over
 the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double fields; Open3D decodes
@@ -16,7 +19,10 @@ bits.
 
 from __future__ import annotations
 
+import contextlib
 import io
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +81,8 @@ def read_pcd(
     twice = next((n for i, n in enumerate(names) if n != "_" and n in names[:i]), None)
     if twice is not None:
         raise InputError(path, f"PCD header: field {twice!r} appears twice in FIELDS")
-    missing = [a for a in XYZ if a not in names]
+    where = {a: _field(path, names, a) for a in (*XYZ, *RGB_FIELDS)}
+    missing = [a for a in XYZ if where[a] is None]
     if missing:
         raise InputError(path, f"PCD has no field {', '.join(missing)} (FIELDS {' '.join(names)})")
     try:
@@ -89,7 +96,8 @@ def read_pcd(
     step = int(offsets[-1])
     formats, at, cols = [], [], []
     for axis in XYZ:
-        i = names.index(axis)
+        i = where[axis]
+        assert i is not None  # checked above
         code = _PCD_TYPES.get((types[i].upper(), size_l[i]))
         if code is None or count_l[i] != 1:
             raise InputError(
@@ -99,9 +107,10 @@ def read_pcd(
         formats.append("<" + code)
         at.append(int(offsets[i]))
         cols.append(int(columns[i]))
-    rgb = next((f for f in RGB_FIELDS if f in names), None) if colours else None
+    rgb = next((f for f in RGB_FIELDS if where[f] is not None), None) if colours else None
     if rgb is not None:
-        i = names.index(rgb)
+        i = where[rgb]
+        assert i is not None
         if size_l[i] != 4 or count_l[i] != 1 or types[i].upper() not in ("F", "U", "I"):
             raise InputError(
                 path,
@@ -137,12 +146,53 @@ def read_pcd(
                 f"PCD compressed block unpacks to {unpacked} bytes, {n} points need {n * step}",
             )
         need_bytes(path, len(raw), start + 8 + packed, f"a compressed block of {packed} bytes")
-        pts, values = open3d_points(path, n, colours=rgb is not None)
+        used = [a for a in (*XYZ, rgb) if a is not None]
+        with _lower_case_fields(path, raw, start, names, {a: where[a] for a in used}) as source:
+            try:
+                pts, values = open3d_points(source, n, colours=rgb is not None)
+            except InputError as exc:
+                raise InputError(path, exc.problem) from exc
         colour = None  # Open3D unpacks the field into bytes / 255
         if values is not None:
             colour = np.clip(np.rint(values), 0, 255).astype(np.uint8)
         return pts, colour, "pcd binary_compressed"
     raise InputError(path, f"PCD header: unknown DATA {' '.join(head['DATA'])!r}")
+
+
+@contextlib.contextmanager
+def _lower_case_fields(
+    path: Path, raw: bytes, start: int, names: list[str], used: dict[str, int | None]
+) -> Iterator[Path]:
+    """``path``, or where the fields used are spelt in another case (``X``, which Open3D does
+    not know), a temporary copy whose FIELDS line spells them in lower case."""
+    renamed = list(names)
+    for name, i in used.items():
+        if i is not None:
+            renamed[i] = name
+    if renamed == names:
+        yield path
+        return
+    lines = raw[:start].split(b"\n")
+    at = max(k for k, ln in enumerate(lines) if ln.strip().upper().startswith(b"FIELDS"))
+    lines[at] = ("FIELDS " + " ".join(renamed)).encode("ascii")
+    with tempfile.TemporaryDirectory(prefix="scan2terrain-pcd-") as folder:
+        copy = Path(folder) / "fields.pcd"
+        with copy.open("wb") as out:
+            out.write(b"\n".join(lines))
+            out.write(memoryview(raw)[start:])
+        yield copy
+
+
+def _field(path: Path, names: list[str], name: str) -> int | None:
+    """The index of field ``name`` in FIELDS: the exact (lower-case) name, else the one field
+    spelt so in another case (``X``, ``RGB``); None if there is none."""
+    if name in names:
+        return names.index(name)
+    found = [i for i, n in enumerate(names) if n.lower() == name]
+    if len(found) > 1:
+        spelt = " and ".join(names[i] for i in found)
+        raise InputError(path, f"PCD header: fields {spelt} are both {name!r}")
+    return found[0] if found else None
 
 
 def unpack_rgb(packed: NDArray[np.uint32]) -> NDArray[np.uint8]:
