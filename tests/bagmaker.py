@@ -798,7 +798,8 @@ def _fg_pose(p: Any) -> dict[str, Any]:
 def ros_to_foxglove(msgtype: str, msg: Any, *, split_tf: bool = False) -> list[tuple[str, Any]]:
     """A deserialised ROS message as Foxglove messages ``(schema name, dict in Foxglove's JSON
     form, bytes as bytes)``: LaserScan (readings below ``range_min`` as NaN; Foxglove has no
-    ``range_max``, so readings at or beyond it would become hits: the callers' scans have none),
+    ``range_max``: read them with ``--max-range`` set to it, or readings at or beyond it are hits
+    and +inf readings are dropped),
     PointCloud2 (fields of count 1; rows repacked),
     TFMessage (one FrameTransforms, or one FrameTransform each with ``split_tf``), Odometry
     (PoseInFrame: the child frame is lost), OccupancyGrid (Grid, one INT8 field

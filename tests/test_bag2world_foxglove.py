@@ -102,6 +102,9 @@ ROOM_OPTIONS = {
     "octree": ["--resolution", "0.05", "--geometry", "heightmap", "--no-preview"],
     "stream": ["--resolution", "0.05", "--stream", "--no-preview"],
 }
+#: The room's LaserScans' range_max, which a foxglove.LaserScan lacks (without it the Foxglove
+#: plan notes that +inf readings clear nothing; the room has none).
+RANGE_MAX = ["--max-range", "30"]
 
 
 @pytest.mark.parametrize(
@@ -111,8 +114,85 @@ def test_foxglove_laserscan_and_transforms_give_the_world_of_the_bag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], room_bag: Path, case: str, mode: str
 ) -> None:
     mcap = foxglove(room_bag, tmp_path, case)
-    options: list[object] = list(ROOM_OPTIONS[mode])
+    options: list[object] = [*ROOM_OPTIONS[mode], *RANGE_MAX]
     same_world(capsys, tmp_path, ["bag2world", room_bag], room_bag, mcap, options)
+
+
+def open_side_bag(tmp: Path, range_max: float) -> Path:
+    """A stationary laser (at the origin, --pose) beside a wall: beams towards y < 0 meet it at
+    y = -3 for |x| <= 6, past its ends they read 10 m (beyond ``range_max``: they only clear),
+    beams towards y > 0 have no return (+inf); some NaN (invalid) and -inf (too close) readings
+    in both halves."""
+    from tests.bagmaker import LASER_SCAN, laserscan_msg, write_bag
+
+    beams = 360
+    inc = 2 * np.pi / beams
+    angles = -np.pi + inc * np.arange(beams)
+    with np.errstate(divide="ignore"):
+        wall = -3.0 / np.sin(angles)
+    below = np.sin(angles) < -1e-9
+    ranges = np.where(below, np.where(np.abs(wall * np.cos(angles)) <= 6.0, wall, 10.0), np.inf)
+    ranges[7::41] = np.nan
+    ranges[11::53] = -np.inf
+    t0 = 1_700_000_000_000_000_000
+    messages = [
+        ("/scan", LASER_SCAN, t0 + k * 100_000_000,
+         laserscan_msg(t0 + k * 100_000_000, "laser", -np.pi, inc, ranges, 0.05, range_max))
+        for k in range(3)
+    ]  # fmt: skip
+    assert np.isinf(ranges).sum() > 100 and (np.isfinite(ranges) & (ranges >= range_max)).any()
+    return write_bag(tmp / "open.bag", "ros1", messages)
+
+
+OPEN_OPTIONS = [*STATIONARY, "--resolution", "0.1", "--geometry", "heightmap", "--no-preview"]
+
+
+@pytest.mark.parametrize("mode", ["octree", "stream"])
+@pytest.mark.parametrize("case", ["protobuf", "json"])
+def test_no_return_readings_give_the_same_world_in_both_containers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str, mode: str
+) -> None:
+    """REP 117 on both paths: a ROS LaserScan's +inf clears up to its range_max; a Foxglove
+    LaserScan's up to --max-range, which stands for the range_max it lacks. The same readings
+    then give the same world (and report), byte for byte."""
+    bag = open_side_bag(tmp_path, range_max=8.0)
+    mcap = foxglove(bag, tmp_path, case)
+    options: list[object] = [*OPEN_OPTIONS, "--max-range", "8"]
+    options += ["--stream"] if mode == "stream" else []
+    same_world(capsys, tmp_path, ["bag2world", bag], bag, mcap, options)
+    if mode == "octree":  # the ROS bag without --max-range: its own range_max, the same world
+        code, _, err = run(capsys, "bag2world", bag, "-o", tmp_path / "ros", *OPEN_OPTIONS)
+        assert code == 0, err
+        code, _, err = run(capsys, "bag2world", mcap, "-o", tmp_path / "fg", *options)
+        assert code == 0, err
+        want = normalised_outputs(tmp_path / "ros", bag)
+        got = normalised_outputs(tmp_path / "fg", mcap)
+        assert got.pop("scan2terrain.yaml") != want.pop("scan2terrain.yaml")  # octree.max_range
+        assert got == want
+        # and the no-return half is known free: the +inf beams cleared it
+        _, grid = read_map_yaml(tmp_path / "fg/map/map_gz.yaml")
+        ys = grid.origin.y + (np.arange(grid.data.shape[0]) + 0.5) * grid.resolution
+        upper = grid.data[ys > 1.0]
+        semicircle = np.pi * 8**2 / 2 / 0.1**2  # cells within range_max on the open side
+        assert (upper == 0).sum() > 0.5 * semicircle
+
+
+def test_foxglove_laserscan_without_max_range_says_its_no_return_readings_clear_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = open_side_bag(tmp_path, range_max=8.0)
+    mcap = foxglove(bag, tmp_path, "protobuf")
+    code, stdout, err = run(capsys, "bag2world", mcap, "-o", tmp_path / "fg", *OPEN_OPTIONS)
+    assert code == 0, err
+    note = "/scan: foxglove.LaserScan has no range_max: its no-return (+inf) readings clear "
+    assert note + "nothing; give --max-range" in stdout
+    _, grid = read_map_yaml(tmp_path / "fg/map/map_gz.yaml")
+    ys = grid.origin.y + (np.arange(grid.data.shape[0]) + 0.5) * grid.resolution
+    assert not (grid.data[ys > 1.0] == 0).any()  # nothing cleared the no-return half
+    code, stdout, err = run(capsys, "inspect", mcap, *STATIONARY)
+    assert code == 0 and note in stdout, err
+    code, stdout, err = run(capsys, "inspect", bag, *STATIONARY)  # a ROS scan has its range_max
+    assert code == 0 and "no range_max" not in stdout, err
 
 
 @pytest.mark.parametrize("case", ["protobuf", "json"])
@@ -167,11 +247,17 @@ def test_inspect_foxglove_mcap(
     code, got, err = run(capsys, "inspect", mcap)
     assert code == 0 and err == "", err
     assert "MCAP, profile '', read with mcap" in got
-    assert "json / jsonschema foxglove.LaserScan, decoded as JSON, read as scans (laser)" in got
+    assert (
+        "json / jsonschema foxglove.LaserScan, decoded as JSON, read as scans (laser; no "
+        "range_max: --max-range stands for it)" in got
+    )
     assert "read as tf" in got
-    # the same tf tree, and the same plan
+    # the same tf tree, and the same plan, but for what a missing range_max means
+    note = "    /scan: foxglove.LaserScan has no range_max: its no-return (+inf) readings clear "
+    lines = got[got.index("  tf tree:") :].splitlines()
+    assert [line for line in lines if line.startswith(note)] != []
     tail = want[want.index("  tf tree:") :]
-    assert got[got.index("  tf tree:") :] == tail
+    assert "\n".join(line for line in lines if not line.startswith(note)) + "\n" == tail
 
 
 def test_convert_foxglove_mcap_gives_the_cloud_of_the_bag(

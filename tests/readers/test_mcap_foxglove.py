@@ -80,15 +80,16 @@ def test_pointcloud_two_fields_strides_types_and_nan(
 
 
 @pytest.mark.parametrize("encoding", ENCODINGS)
-def test_laserscan_every_finite_positive_range_is_a_hit(
-    tmp_path: Path, encoding: FoxgloveEncoding
-) -> None:
-    ranges = [1.0, 0.0, -1.0, math.inf, math.nan, 2.0, 50.0]
+def test_laserscan_readings_follow_rep_117(tmp_path: Path, encoding: FoxgloveEncoding) -> None:
+    """+inf is no return within range: with --max-range (Foxglove has no range_max) it clears
+    up to it, as a ROS scan's +inf clears up to range_max; without, nothing says how far, so it
+    is dropped. NaN, -inf (too close), 0 and negatives are no information: always dropped."""
+    ranges = [1.0, 0.0, -1.0, math.inf, math.nan, 2.0, 50.0, -math.inf]
     value = {
         "timestamp": STAMP,
         "frame_id": "laser",
         "start_angle": 0.0,
-        "end_angle": math.pi,
+        "end_angle": 7 * math.pi / 6,
         "ranges": ranges,
     }
     msg = one(tmp_path, "foxglove.LaserScan", value, encoding)
@@ -98,10 +99,49 @@ def test_laserscan_every_finite_positive_range_is_a_hit(
     step = math.pi / 6
     want = [(r * math.cos(i * step), r * math.sin(i * step)) for i, r in [(0, 1), (5, 2), (6, 50)]]
     np.testing.assert_allclose(pts[:, :2], want, atol=1e-12)
-    # --max-range: beyond it, a beam only clears (as a ROS scan's range_max)
+    # --max-range: at or beyond it, and +inf, a beam only clears (as a ROS scan's range_max)
     pts, mr = msg.points(10.0)
-    assert mr == pytest.approx(10.0, rel=1e-4) and len(pts) == 3
-    assert np.hypot(*pts[2, :2]) > mr
+    assert mr == pytest.approx(10.0, rel=1e-4) and len(pts) == 4
+    angles = np.arctan2(pts[:, 1], pts[:, 0]) % (2 * math.pi)
+    np.testing.assert_allclose(angles, np.array([0, 3, 5, 6]) * step, atol=1e-12)
+    distance = np.hypot(pts[:, 0], pts[:, 1])
+    np.testing.assert_allclose(distance[[0, 2]], [1.0, 2.0])
+    assert (distance[[1, 3]] > mr).all()
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_laserscan_points_equal_the_ros_laserscans(
+    tmp_path: Path, encoding: FoxgloveEncoding
+) -> None:
+    """The same readings as a ROS LaserScan (range_max R) and a Foxglove one read with
+    --max-range R: the same points and the same cut, +inf and NaN included."""
+    from types import SimpleNamespace
+
+    from scan2terrain.readers.laserscan import laserscan_points
+
+    rng = np.random.default_rng(7)
+    ranges = rng.uniform(0.1, 12.0, 360).astype(np.float32)
+    ranges[rng.choice(360, 60, replace=False)] = np.inf
+    ranges[rng.choice(360, 20, replace=False)] = np.nan
+    ranges[rng.choice(360, 10, replace=False)] = -np.inf
+    ranges[:5] = 8.0  # exactly range_max: clear only
+    inc = np.float32(2 * np.pi / 360)
+    ros = SimpleNamespace(
+        ranges=ranges, angle_min=-np.pi, angle_increment=float(inc), range_min=0.0, range_max=8.0
+    )
+    value = {
+        "timestamp": STAMP,
+        "frame_id": "laser",
+        "start_angle": -np.pi,
+        "end_angle": -np.pi + 359 * float(inc),
+        "ranges": [float(r) for r in ranges],
+    }
+    msg = one(tmp_path, "foxglove.LaserScan", value, encoding)
+    want, want_mr = laserscan_points(ros)
+    got, got_mr = msg.points(8.0)
+    informative = int(np.count_nonzero(ranges > 0))  # not NaN, not -inf
+    assert got_mr == want_mr and got.shape == want.shape == (informative, 3)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("encoding", ENCODINGS)

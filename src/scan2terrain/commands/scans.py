@@ -95,12 +95,12 @@ def bag2world(
         from scan2terrain.commands import stream
 
         with open_bag(list(bags)) as bag:
-            is_map = plan_bag(bag, cfg.scans).map_topic is not None
+            is_map = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range).map_topic is not None
         if not is_map:
             streamed = stream.stream_bag(bags, cfg, stream_progress)
             return stream.streamed_world(streamed, Path(bags[0]), out, cfg, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
-        plan = plan_bag(bag, cfg.scans)
+        plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if plan.map_topic is not None:
             msg, _ = map_message(bag, plan, cfg.scans.map_message)
             if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
@@ -265,7 +265,7 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
         else:
             lines.append("  tf tree: none (no /tf or /tf_static)")
         try:
-            plan = plan_bag(bag, cfg.scans)
+            plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         except InputError as exc:
             lines.append(f"  bag2world would stop: {exc.problem}")
         else:
@@ -469,7 +469,7 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
     from scan2terrain.readers.scans import plan_bag, posed_scans
     from scan2terrain.types import ScanCounts
 
-    plan = plan_bag(bag, cfg.scans)
+    plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
     if plan.map_topic is not None:
         raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to convert")
     counts = ScanCounts()

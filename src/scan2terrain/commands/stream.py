@@ -427,7 +427,7 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     from scan2terrain.types import ScanCounts
 
     with open_bag(list(bags)) as bag:
-        plan = plan_bag(bag, cfg.scans)
+        plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if plan.map_topic is not None:
             raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to stream")
         bag.require_messages(plan.scan_topics, plan.start_ns, plan.end_ns)

@@ -24,10 +24,13 @@ readers downstream (:mod:`~scan2terrain.readers.scans`, :mod:`~scan2terrain.read
     points (as Foxglove Studio counts them); at least two of x, y, z (a missing one is 0, as
     Foxglove draws it); points with a non-finite coordinate dropped.
   - ``foxglove.LaserScan`` -> :class:`LaserScan`: reading i at ``start_angle + i * (end_angle -
-    start_angle) / (n - 1)``. The schema has no ``range_min`` / ``range_max``, so **every finite
-    positive range is a hit** and every other reading (0, negative, NaN, +-inf) is dropped: no
-    beam only clears space unless a ``--max-range`` is given, which cuts beams as for a ROS
-    LaserScan (readings at or beyond it only clear, up to it).
+    start_angle) / (n - 1)``, read by REP 117 as a ROS LaserScan is. The schema has no
+    ``range_min`` / ``range_max``: ``--max-range`` (``octree.max_range``) stands for the
+    missing ``range_max``. With it, finite positive readings below it are hits, readings at or
+    beyond it and ``+inf`` (no return) only clear, up to it: exactly the points of a ROS scan
+    whose ``range_max`` it is (``range_min`` 0). Without it nothing says how far a no-return
+    beam may clear: every finite positive reading is a hit and ``+inf`` is dropped (the plan
+    says so). NaN (invalid), ``-inf`` (too close), 0 and negatives are always dropped.
   - Both carry ``pose``, the scan's origin in its ``frame_id``: :meth:`PointCloud.points` and
     :meth:`LaserScan.points` give points in that scan origin's frame and :attr:`local_pose` the
     origin, which the scan reader composes with the frame's pose (so rays start at the scan's
@@ -75,7 +78,7 @@ TF_TYPES = frozenset({FRAME_TRANSFORM, FRAME_TRANSFORMS})
 #: How each schema the pipeline reads is used (for ``inspect``).
 USES = {
     POINT_CLOUD: "read as scans (points)",
-    LASER_SCAN: "read as scans (laser)",
+    LASER_SCAN: "read as scans (laser; no range_max: --max-range stands for it)",
     FRAME_TRANSFORM: "read as tf",
     FRAME_TRANSFORMS: "read as tf",
     POSE_IN_FRAME: "read as odometry",
@@ -275,9 +278,13 @@ class LaserScan:
     ranges: NDArray[np.float64]
 
     def points(self, max_range: float = -1.0) -> tuple[NDArray[np.float64], float]:
-        """Points in the scan origin's frame (z = 0) and the max range to insert them with:
-        every finite positive reading is a hit (-1: no cut), or, with ``max_range`` > 0,
-        readings at or beyond it only clear, as :func:`laserscan_points` cuts a ROS scan."""
+        """Points in the scan origin's frame (z = 0) and the max range to insert them with.
+
+        With ``max_range`` > 0 (the scanner's range, which the schema lacks) the points of a ROS
+        LaserScan with that ``range_max`` and ``range_min`` 0 (:func:`laserscan_points`): hits
+        below it, clear-only beams for readings at or beyond it and for ``+inf``. Without (-1:
+        no cut), every finite positive reading is a hit and ``+inf`` is dropped. NaN, ``-inf``
+        and readings <= 0 are dropped either way (REP 117)."""
         r = self.ranges
         n = r.size
         if not (math.isfinite(self.start_angle) and math.isfinite(self.end_angle)):
@@ -286,12 +293,14 @@ class LaserScan:
                 f"LaserScan angles must be finite (start {self.start_angle}, end {self.end_angle})",
             )
         increment = (self.end_angle - self.start_angle) / (n - 1) if n > 1 else 0.0
-        with np.errstate(invalid="ignore"):
-            usable = np.isfinite(r) & (r > 0)
-        cleaned = np.where(usable, r, np.nan)
         cut = max_range > 0
+        with np.errstate(invalid="ignore"):
+            positive = r > 0  # False for NaN and -inf
+            finite = positive & np.isfinite(r)
+            kept = positive if cut else finite  # +inf clears only as far as a cut says
+        cleaned = np.where(kept, r, np.nan)
         # Without a cut, a range_max beyond every reading (all are hits; capped to stay finite).
-        top = float(r[usable].max()) if usable.any() else 0.0
+        top = float(r[finite].max()) if finite.any() else 0.0
         limit = max_range if cut else min(top * 2 + 1, np.finfo(np.float64).max)
         scan = SimpleNamespace(
             ranges=cleaned,

@@ -49,6 +49,7 @@ from scan2terrain.readers.bag import (
     resolve_time,
 )
 from scan2terrain.readers.bag import SCAN_TYPES as _SCAN_TYPES
+from scan2terrain.readers.foxglove import LASER_SCAN as FOXGLOVE_LASER_SCAN
 from scan2terrain.readers.foxglove import Grid as FoxgloveGrid
 from scan2terrain.readers.foxglove import LaserScan as FoxgloveLaserScan
 from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
@@ -85,8 +86,10 @@ def scan_topics(bag: Bag) -> list[str]:
     return sorted(n for n, t in bag.topics.items() if t.msgtype in SCAN_TYPES and t.count)
 
 
-def plan_bag(bag: Bag, cfg: ScansConfig) -> BagPlan:
+def plan_bag(bag: Bag, cfg: ScansConfig, *, max_range: float = -1.0) -> BagPlan:
     """Decide topics, fixed frame and pose source for ``bag`` (see the module docstring).
+    ``max_range`` (metres, ``octree.max_range``; < 0: none) only decides what the plan says
+    of a ``foxglove.LaserScan`` topic's no-return readings.
 
     Raises
     ------
@@ -143,6 +146,12 @@ def plan_bag(bag: Bag, cfg: ScansConfig) -> BagPlan:
         if len(frames) > 1:
             raise InputError(path, f"{t} changes frame ({', '.join(sorted(frames))})")
         plan.sensor_frames[t] = normalise_frame(next(iter(frames), ""))
+        if bag.topics[t].msgtype == FOXGLOVE_LASER_SCAN and max_range <= 0:
+            plan.reasons.append(
+                f"{t}: foxglove.LaserScan has no range_max: its no-return (+inf) readings clear "
+                "nothing; give --max-range (the scanner's range) to clear along them as a ROS "
+                "LaserScan does up to its range_max"
+            )
     _plan_poses(bag, cfg, plan)
     return plan
 
