@@ -5,6 +5,7 @@ floors; and the refusals."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -319,3 +320,133 @@ def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
         m = trimesh.load(stl)
         assert m.is_watertight and m.is_winding_consistent
     assert (out / "octree.bt").is_file() and (out / "map" / "map_gz.yaml").is_file()
+
+
+# --- trees swept by a 2D laser: one scan plane, walls extruded -----------------------------------
+
+TB3 = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
+
+
+def _walls(out: Path) -> tuple[float, float, float]:
+    """The voxel meshes' lowest and highest z and their volume."""
+    meshes = [trimesh.load(s) for s in _stls(out)]
+    assert all(m.is_watertight and m.is_winding_consistent for m in meshes)
+    lo = min(float(m.bounds[0][2]) for m in meshes)
+    hi = max(float(m.bounds[1][2]) for m in meshes)
+    return lo, hi, sum(float(m.volume) for m in meshes)
+
+
+def _map(out: Path) -> np.ndarray:
+    from scan2terrain.readers import read_map_yaml
+
+    return read_map_yaml(out / "map/map_gz.yaml")[1].data
+
+
+def _check_2d_laser_world(out: Path, height: float, res: float) -> np.ndarray:
+    """Walls ``height`` high (at least) from z = 0 over every occupied map cell, nothing else;
+    map/ holds walls and free space."""
+    grid = _map(out)
+    walls = int((grid == 100).sum())
+    assert walls > 0 and (grid == 0).sum() > walls  # not all unknown: walls and free space
+    lo, hi, volume = _walls(out)
+    assert lo == pytest.approx(0.0, abs=1e-6)  # STL holds float32
+    assert hi >= height - 1e-6
+    layers = math.ceil(height / res - 1e-9)
+    # Each occupied column of map/ is one wall column of `layers` voxels (up to the 1 mm hair
+    # where wall voxels touch only at an edge).
+    assert volume == pytest.approx(walls * layers * res**3, rel=2e-3)
+    return grid
+
+
+def test_a_2d_laser_bag_becomes_walls_of_the_wall_height(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A LaserScan bag ray cast into the octree is one scan plane (here two voxel layers: the
+    odometry's z wavers around 0): its hits become walls --height high from z = 0, as the
+    other geometries make them, and map/ is the projection of the whole tree (walls and the
+    free space the laser saw), not the empty band 0.3-2 m above a floor it never saw. The same
+    from the octree.bt it wrote."""
+    out = tmp_path / "bag"
+    args = ["bag2world", str(TB3), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
+            "--height", "1.2"]  # fmt: skip
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    grid = _check_2d_laser_world(out, 1.2, 0.05)
+    assert "one scan plane" in printed
+    bt = tmp_path / "bt"
+    args = ["octree2world", str(out / "octree.bt"), "-o", str(bt), "--geometry", "voxels",
+            "--simulator", "gz", "--height", "1.2", "-q"]  # fmt: skip
+    assert main(args) == 0
+    np.testing.assert_array_equal(_check_2d_laser_world(bt, 1.2, 0.05), grid)
+
+
+def _room_scan_file(path: Path, every: int = 5) -> Path:
+    """The synthetic room's 2D scans (laser 0.3 m above the floor) as an OctoMap scan file."""
+    from tests.bagmaker import synthetic_room
+
+    room = synthetic_room("tf", n_scans=100)
+    lines = []
+    for k in range(0, len(room.hits), every):
+        origin = room.sensor_origins()[k]
+        lines.append("NODE {:.6f} {:.6f} {:.6f} 0 0 0".format(*origin))
+        lines += ["{:.6f} {:.6f} {:.6f}".format(*p) for p in room.hits[k] - origin]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_2d_laser_scan_file_becomes_walls(tmp_path: Path) -> None:
+    """octree2world on OctoMap scans of one plane (0.3 m up): walls 2 m high (terrain.height)
+    from z = 0, map/ with walls and free space."""
+    scans = _room_scan_file(tmp_path / "room.dat")
+    out = tmp_path / "w"
+    args = ["octree2world", str(scans), "-o", str(out), "--geometry", "voxels", "--resolution",
+            "0.1", "--simulator", "gz", "-q"]  # fmt: skip
+    assert main(args) == 0
+    _check_2d_laser_world(out, 2.0, 0.1)
+
+
+def test_floors_are_not_taken_for_scan_planes(tmp_path: Path) -> None:
+    """A floor seen from 0.2 m above (free voxels over it) and a floor of end points only (no
+    free voxel) stay floors, one voxel thick; map/ shows their columns as free, never all
+    unknown."""
+    from scan2terrain.commands.voxels import voxels_world
+    from scan2terrain.config import load_config
+
+    xs, ys = np.meshgrid(np.arange(32760, 32780), np.arange(32760, 32780))
+    floor = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 32767)])
+    above = np.concatenate([floor + np.array([0, 0, dz]) for dz in (1, 2)])  # 0.2 m free
+    cfg = load_config(None, {"world.geometry": "voxels", "world.simulator": "gz"})
+    for name, keys, occupied in (
+        ("seen", np.concatenate([floor, above]), np.arange(len(floor) + len(above)) < len(floor)),
+        ("endpoints", floor, np.ones(len(floor), bool)),
+    ):
+        out = tmp_path / name
+        voxels_world(
+            keys.astype(np.uint16), occupied, 0.1, source=GEB079, out=out, cfg=cfg,
+            overwrite=False,
+        )  # fmt: skip
+        lo, hi, _ = _walls(out)
+        assert (lo, hi) == pytest.approx((-0.1, 0.0), abs=1e-6), name
+        grid = _map(out)
+        assert (grid == 0).sum() == len(floor) and (grid == 100).sum() == 0, name
+
+
+def test_a_robot_cannot_drive_through_the_walls_of_a_2d_laser_world(tmp_path: Path) -> None:
+    """The synthetic room's LaserScan bag (laser 0.3 m up) as --geometry voxels, in gz-sim's
+    physics: a robot driven at a wall stops at it; one driven along the free room does not."""
+    from tests.bagmaker import synthetic_room
+
+    bag = synthetic_room("tf", n_scans=60).write(tmp_path / "room.bag", "ros1")
+    out = tmp_path / "w"
+    args = ["bag2world", str(bag), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
+            "-q"]  # fmt: skip
+    assert main(args) == 0
+    world, models = out / "world_gz.sdf", [out / "models"]
+    # On the ground, as spawn.yaml says (z: the floor's height in this world).
+    z = yaml.safe_load((out / "spawn.yaml").read_text())["gz"]["pose"][2]
+    # The wall at x = 5.025: its voxels' inner face is x = 5.0.
+    blocked = drive_robot(world, models, (3.5, 2.0, 0.0), tmp_path, distance=2.5, z=z)
+    assert blocked.advance < 5.0 - (3.5 + 0.495) + 0.02
+    free = drive_robot(world, models, (-3.5, 2.5, 0.0), tmp_path, distance=2.5, z=z)
+    assert free.advance > 2.0
+    assert blocked.result.shapes_failed == 0 and free.result.shapes_failed == 0

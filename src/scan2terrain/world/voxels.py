@@ -12,8 +12,18 @@ What the world holds, in the map (= world) frame, metres:
   unknown space;
 * map/: octomap_server's projection of the voxels in the z band, or, without a band, of those
   between 0.3 m and 2 m above the ground (the obstacles a ground robot meets; the floor
-  itself would mark every cell occupied), lined up with the world;
+  itself would mark every cell occupied), where a column with nothing occupied there whose
+  floor was seen (an occupied voxel within 0.3 m of the ground) is free, lined up with the
+  world;
 * spawn.yaml: a free spot on the floor (the highest voxel top within 0.3 m of the ground).
+
+A tree swept by a 2D laser (:func:`scan_plane`: its occupied voxels lie within 0.3 m of
+height and its free voxels among them, never above or below: the rays stayed in one plane)
+holds no floor and walls one scan plane high, which a robot would drive over. Its occupied
+columns become walls ``terrain.height`` high (rounded up to whole voxels) on a ground at
+z = 0, as the walls of the other geometries, and map/ is the projection of the whole tree
+(or of the z band): the walls and the free space the laser swept. A thin tree without free
+voxels (end points only) is taken for a floor: nothing tells it from one.
 """
 
 from __future__ import annotations
@@ -31,7 +41,7 @@ from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.octree.keys import KEY_OFFSET
 from scan2terrain.steps import Preview, spawn_for
-from scan2terrain.types import FREE, OCCUPIED, Start
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, Start
 from scan2terrain.world.folder import (
     ExtraFiles,
     Result,
@@ -57,6 +67,9 @@ GROUND_QUANTILE = 0.001
 MAX_CHUNKS = 4096
 #: Most colours in the visual meshes (a submesh and a material each: draw calls).
 MAX_COLOURS = 64
+#: A tree is one scan plane (see :func:`scan_plane`) when its occupied voxels span at most
+#: this height (metres): then none reaches the obstacles of map/ above the floor band.
+SCAN_PLANE_SPAN = FLOOR_BAND
 #: Most occupied voxels meshed: meshing holds about 2 KB a voxel at its peak today (10 M voxels
 #: took 20 GB), so larger sets are refused before any work instead of exhausting memory.
 MAX_MESH_VOXELS = 4_000_000
@@ -89,6 +102,9 @@ def voxel_mesh_world(
     solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
     if len(solid) == 0:
         raise InputError(source, "the octree holds no occupied voxel: nothing to make a world of")
+    plane = scan_plane(keys, occupied, runs, resolution)
+    if plane is not None:  # its z extent in metres (the resolution may be coarsened below)
+        plane_z = ((np.array(plane) - KEY_OFFSET + [0, 1]) * resolution).tolist()
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
     centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
@@ -118,6 +134,9 @@ def voxel_mesh_world(
                 source, f"every occupied voxel is in a component under world.min_voxels"
                 f" {w.min_voxels}: nothing is left"
             )  # fmt: skip
+    left_out = kept - len(lattice)
+    if plane is not None:
+        lattice, rgb = _extrude(lattice, rgb, cfg.terrain.height, resolution, source)
     cells = max(1, round(w.chunk / resolution))
     palette = labels = None
     if rgb is not None:
@@ -152,17 +171,26 @@ def voxel_mesh_world(
         z=z_ground,
     )
     # map/ and the spawn: the projection of the obstacles, and the floor's height.
-    band = (z_min, z_max) if (o.z_min, o.z_max) != (None, None) else (
-        z_ground + FLOOR_BAND, z_ground + OBSTACLE_TOP
-    )  # fmt: skip
+    banded = (o.z_min, o.z_max) != (None, None)
+    if banded or plane is not None:  # a scan plane: the whole tree, as octomap_server's map
+        band = (z_min, z_max)
+    else:
+        band = (z_ground + FLOOR_BAND, z_ground + OBSTACLE_TOP)
     map_out = project_occupancy(keys, occupied, resolution, z_min=band[0], z_max=band[1], runs=runs)
-    floor = column_stats(
-        keys, occupied, resolution, z_min=z_ground, z_max=z_ground + FLOOR_BAND, runs=runs
-    )
-    floor_top = np.where(floor.known, floor.max_z + resolution / 2, z_ground)
+    if plane is None:
+        floor = column_stats(
+            keys, occupied, resolution, z_min=z_ground, z_max=z_ground + FLOOR_BAND, runs=runs
+        )
+        floor_top = np.where(floor.known, floor.max_z + resolution / 2, z_ground)
+        if not banded:  # the floor seen with nothing on it: free (end points hold no free voxel)
+            seen = floor.known & (map_out.data == UNKNOWN)
+            map_out = map_out.with_data(np.where(seen, FREE, map_out.data).astype(np.int8))
+    else:
+        floor_top = np.full(map_out.shape, z_ground)
     walls = map_out.data == OCCUPIED
+    wall_top = float(hi[2]) if plane is not None else z_ground + OBSTACLE_TOP
     spawn = spawn_for(
-        np.where(walls, z_ground + OBSTACLE_TOP, floor_top).astype(np.float64),
+        np.where(walls, wall_top, floor_top).astype(np.float64),
         resolution,
         map_out.origin,
         start,
@@ -201,14 +229,21 @@ def voxel_mesh_world(
             f"colour: each voxel the mean of its points' RGB (grey without), {len(palette)}"
             " colours in the visual meshes"
         )
-    if kept != len(lattice):
+    if left_out:
+        result.notes.append(f"{left_out} voxels in components under {w.min_voxels} voxels left out")
+    if plane is not None:
         result.notes.append(
-            f"{kept - len(lattice)} voxels in components under {w.min_voxels} voxels left out"
+            f"one scan plane (a 2D laser): the occupied voxels lie between z = {plane_z[0]:g}"
+            f" and {plane_z[1]:g} m, amid the free space the rays swept, and no floor was"
+            f" seen: each occupied column is a wall {size_z:g} m high (terrain.height"
+            f" {cfg.terrain.height:g} m, whole voxels) from the ground at z = 0, as the other"
+            " geometries build walls; map/: the projection of the whole tree"
+            + ("" if not banded else " in the z band")
         )
-    if (o.z_min, o.z_max) == (None, None):
+    elif not banded:
         result.notes.append(
             f"map/: the voxels {FLOOR_BAND:g} to {OBSTACLE_TOP:g} m above the ground at z ="
-            f" {z_ground:g} (no --z-min/--z-max)"
+            f" {z_ground:g} (no --z-min/--z-max); free where only the floor was seen"
         )
     result.notes.extend(map_notes(cfg, map_out))
     sims = (GZ, CLASSIC) if w.simulator == "both" else (w.simulator,)
@@ -230,6 +265,53 @@ def voxel_mesh_world(
     # The projection is in world axes already (yaw 0, on voxel boundaries).
     folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
+
+
+def scan_plane(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    runs: NDArray[np.uint16] | None,
+    resolution: float,
+) -> tuple[int, int] | None:
+    """The lowest and highest z key of the occupied voxels of a tree swept by one planar (2D)
+    laser, else None: the occupied voxels span at most :data:`SCAN_PLANE_SPAN`, and there are
+    free voxels, all in the occupied voxels' z keys (a floor seen from above has its free space
+    over it; end points alone have none). ``runs`` as in grids.projection."""
+    free = ~occupied
+    if not free.any():
+        return None
+    bottom = keys[:, 2].astype(np.int64)
+    top = bottom if runs is None else bottom + runs.astype(np.int64) - 1
+    lo, hi = int(bottom[occupied].min()), int(top[occupied].max())
+    if (hi - lo + 1) * resolution > SCAN_PLANE_SPAN + 1e-9 * resolution:
+        return None
+    if int(bottom[free].min()) < lo or int(top[free].max()) > hi:
+        return None
+    return lo, hi
+
+
+def _extrude(
+    lattice: NDArray[np.int64],
+    rgb: NDArray[np.uint8] | None,
+    height: float,
+    resolution: float,
+    source: Path,
+) -> tuple[NDArray[np.int64], NDArray[np.uint8] | None]:
+    """Each (x, y) column of the voxels as a wall from z = 0 up to ``height`` metres or more
+    (whole voxels), coloured as one of its voxels; refused past :data:`MAX_MESH_VOXELS`."""
+    layers = max(1, math.ceil(height / resolution - 1e-9))
+    columns, first = np.unique(lattice[:, :2], axis=0, return_index=True)
+    if len(columns) * layers > MAX_MESH_VOXELS:
+        raise InputError(
+            source,
+            f"walls of {layers} voxels over the {len(columns)} columns a 2D laser hit make"
+            f" {len(columns) * layers} voxels, more than the {MAX_MESH_VOXELS} that --geometry"
+            " voxels meshes: use --geometry mesh (the same walls as extruded outlines), a"
+            " lower --height or a larger --voxel-size",
+        )
+    z = np.tile(np.arange(layers, dtype=np.int64), len(columns))
+    walls = np.column_stack([np.repeat(columns, layers, axis=0), z])
+    return walls, None if rgb is None else np.repeat(rgb[first], layers, axis=0)
 
 
 def _coarser(
