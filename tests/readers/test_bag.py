@@ -455,6 +455,11 @@ def test_damaged_chunk_fails_while_reading(tmp_path: Path) -> None:
         for _ in bag.messages(list(bag.topics)):
             pass
     assert str(info.value).startswith(str(bad))
+    # Not bz2's own words ("Invalid data stream, OSError"), which said nothing about the bag.
+    assert info.value.problem == (
+        "cannot read message data: the file is damaged or truncated "
+        "(a compressed chunk does not decompress)"
+    )
 
 
 def test_not_bags(tmp_path: Path) -> None:

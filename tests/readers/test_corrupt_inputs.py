@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import struct
 import subprocess
 import sys
@@ -53,6 +54,7 @@ def isolated(code: str, limit: int = 2 << 30) -> list[str]:
 
 READ_EACH = """
 import json
+import re
 from scan2terrain.errors import InputError
 from scan2terrain.readers.cloudfile import read_cloud
 from scan2terrain.readers.las import iter_las, las_info
@@ -393,10 +395,115 @@ def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path
 
 
 def test_bag_errors_stay_one_short_line() -> None:
+    from rosbags.rosbag1 import ReaderError
+
     from scan2terrain.readers._bag_errors import _explain
 
     text = _explain(UnicodeDecodeError("utf-8", b"x" * 5000 + b"\xff", 5000, 5001, "bad"))
-    assert text.startswith("cannot read the bag: 'utf-8' codec can't decode byte 0xff")
-    assert "\n" not in _explain(ValueError("Could not parse:\n'MSG: a\nb'"))
-    assert len(_explain(ValueError("x" * 5000))) < 300
+    assert text == "the bag is damaged: it holds text (a name or a definition) that is not UTF-8"
+    # rosbags' own sentences are quoted, on one short line; Python's texts are not shown.
+    assert _explain(ReaderError("Could not parse:\n'MSG: a\nb'")) == (
+        "cannot read the bag (rosbags: \"Could not parse: 'MSG: a b'\")"
+    )
+    assert len(_explain(ReaderError("x" * 5000))) < 300
+    assert _explain(ValueError("x" * 5000), storage="mcap") == (
+        "the MCAP file is truncated or damaged: rosbags cannot parse it (-v shows where it fails)"
+    )
     assert "corrupt length field" in _explain(MemoryError())
+
+
+# --- bags cut to a few bytes: one sentence of ours, never a library's words (issue 25 item 12) ----
+
+BAGS = ROOT / "fixtures/bags"
+#: Layout -> (the fixture whose storage file is cut, the storage file's suffix).
+CUT_BAGS = {
+    "bag file": (BAGS / "bag1_ccny_hokuyo_scan/demo.bag", ".bag"),
+    "mcap file": (BAGS / "bag2_derived_embark_luminar_mcap", ".mcap"),
+    "db3 file": (BAGS / "bag2_derived_sick_lms1xx_db3", ".db3"),
+    "mcap folder": (BAGS / "bag2_derived_embark_luminar_mcap", ".mcap"),
+    "db3 folder": (BAGS / "bag2_derived_sick_lms1xx_db3", ".db3"),
+}
+MAGIC_ONLY = {
+    ".bag": [
+        b"#ROSBAG V2.0",
+        b"#ROSBAG V2.0\n",
+        b"#ROSBAG V2.0\n" * 2,
+        b"#ROSBAG V2.0\n" + bytes(4096),
+    ],
+    ".mcap": [b"\x89MCA", b"\x89MCAP0\r\n", b"\x89MCAP0\r\n" * 2, b"\x89MCAP0\r\n" + bytes(100)],
+    ".db3": [b"SQLite format 3\x00", b"SQLite format 3\x00" + bytes(84)],
+}
+#: How every refusal of such a file begins: sentences written here, not a library's.
+OUR_SENTENCES = (
+    "the file is empty, not a bag",
+    "this is a text file, not a ROS bag",
+    "not a ROS bag (expected",
+    "unsupported ROS1 bag version",
+    "the bag's index is missing or damaged",
+    "the ROS1 bag is truncated or damaged",
+    "the ROS1 bag is damaged",
+    "the MCAP file is empty",
+    "the MCAP file is truncated or damaged",
+    "the MCAP file is damaged",
+    "the sqlite3 file is empty",
+    "the sqlite3 file is truncated or damaged",
+)
+#: What Python or a library says that a user should never read: exception names, builtins'
+#: complaints (ord(), struct.unpack), rosbags' own sentences.
+RAW = re.compile(
+    r"[A-Za-z]+Error\b|ord\(\)|unpack requires|expected a character|KeyError|"
+    r"File magic is invalid|Truncated record|Unexpected record|seems to be empty|"
+    r"Cannot open database|Could not read|Header field"
+)
+
+
+def _cut_bag(layout: str, blob: bytes, where: Path) -> Path:
+    src, suffix = CUT_BAGS[layout]
+    storage = src if src.is_file() else next(src.glob(f"*{suffix}"))
+    where.mkdir()
+    if layout.endswith("file"):
+        path = where / f"x{suffix}"
+        path.write_bytes(blob)
+        return path
+    (where / "metadata.yaml").write_bytes((src / "metadata.yaml").read_bytes())
+    (where / storage.name).write_bytes(blob)
+    return where
+
+
+@pytest.mark.parametrize("layout", sorted(CUT_BAGS))
+def test_a_bag_cut_to_a_few_bytes_is_one_sentence_of_ours(tmp_path: Path, layout: str) -> None:
+    """Every prefix of 0..64 bytes, and files of little more than the format's magic: refused
+    with one of our sentences naming the file. An 8-byte MCAP file said "ord() expected a
+    character, but string of length 0 found (TypeError)"; others "File magic is invalid
+    (AnyReaderError)", "Truncated record at offset 8 ...", "Cannot open database ..."."""
+    from scan2terrain.readers.bag import open_bag
+
+    src, suffix = CUT_BAGS[layout]
+    data = (src if src.is_file() else next(src.glob(f"*{suffix}"))).read_bytes()
+    blobs = [data[:n] for n in range(65)] + MAGIC_ONLY[suffix]
+    bad = []
+    for i, blob in enumerate(blobs):
+        path = _cut_bag(layout, blob, tmp_path / str(i))
+        with pytest.raises(InputError) as info:
+            open_bag(path).close()
+        problem = info.value.problem
+        if info.value.path != path or RAW.search(problem) or not problem.startswith(OUR_SENTENCES):
+            bad.append(f"{len(blob)} bytes {blob[:16]!r}: {info.value}")
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("command", ["inspect", "bag2world"])
+def test_an_mcap_file_of_its_magic_only_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    from scan2terrain.cli import main
+
+    path = tmp_path / "x.mcap"
+    path.write_bytes(b"\x89MCAP0\r\n")
+    args = [command, str(path)] + (["-o", str(tmp_path / "out")] if command == "bag2world" else [])
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    problem = "the MCAP file is truncated or damaged: it ends after its magic"
+    assert err == f"scan2terrain: error: {path}: {problem}\n"
+    assert not (tmp_path / "out").exists()

@@ -1,6 +1,8 @@
 """How reading a bag fails, in words, and the defects of old ROS1 bags that are read anyway.
 
-:func:`_explain` puts an exception of rosbags (or of its sqlite/mcap/zstd backends) in one line,
+:func:`_explain` puts an exception of rosbags (or of its sqlite/mcap/zstd backends) in one
+sentence of ours naming what holds the bag (the ROS1 bag, the MCAP file, the sqlite3 file), never
+Python's own words ("ord() expected a character...", "unpack requires a buffer..."),
 :func:`_culprit` finds the file of a split ROS1 recording to name, :func:`_undecodable` says why
 a message type cannot be deserialised; all for :mod:`scan2terrain.readers.bag`. Choices:
 
@@ -21,6 +23,8 @@ a message type cannot be deserialised; all for :mod:`scan2terrain.readers.bag`. 
 from __future__ import annotations
 
 import os
+import re
+import struct
 from io import BytesIO
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -92,38 +96,120 @@ class _Ros1Reader(_RosbagsReader1):
 
 # --- rosbags' failures, in words ------------------------------------------------------------------
 
+#: What holds a bag's records, by the suffix rosbags dispatches on.
+_STORAGE_BY_SUFFIX = {".bag": "ros1", ".mcap": "mcap", ".db3": "sqlite3"}
+#: How a message names the file of each storage.
+_NOUN = {"ros1": "the ROS1 bag", "mcap": "the MCAP file", "sqlite3": "the sqlite3 file"}
+#: rosbags' (and its backends') complaints about a file, as our sentences: (pattern matched in
+#: the exception's text, storage it applies to or None for any, sentence; ``{noun}`` and the
+#: pattern's groups are filled in). The first match wins.
+_SENTENCES: tuple[tuple[str, str | None, str], ...] = (
+    (
+        r"index looks damaged|not indexed|header could not be read",
+        None,
+        "the bag's index is missing or damaged (a truncated file or a recording that was "
+        "killed?); in ROS1 'rosbag reindex' rebuilds it",
+    ),
+    (r"end magic", None, "the MCAP file is truncated or damaged (its end marker is missing)"),
+    (r"seems to be empty", None, "{noun} is empty"),
+    (
+        r"ord\(\) expected a character",
+        "mcap",
+        "{noun} is truncated or damaged: it ends after its magic",
+    ),
+    (
+        r"ord\(\) expected a character",
+        None,
+        "{noun} is truncated: it ends where a record should begin",
+    ),
+    (
+        r"file magic is invalid",
+        "mcap",
+        "{noun} is truncated or damaged: it does not start with the MCAP magic",
+    ),
+    (
+        r"file magic is invalid",
+        "ros1",
+        "{noun} is truncated or damaged: its first line is not '#ROSBAG V2.0'",
+    ),
+    (
+        r"truncated record at offset (\d+): expected (\d+) bytes, got (\d+)",
+        None,
+        "{noun} is truncated or damaged: the record at byte {0} needs {1} bytes, {2} are left",
+    ),
+    (r"unexpected record", "mcap", "{noun} is damaged: its first record is not a header"),
+    (
+        r"could not read \w+ field|header field could not be parsed",
+        None,
+        "{noun} is damaged: a record header cannot be parsed",
+    ),
+    (
+        r"missing tables",
+        None,
+        "the sqlite3 file is empty or not a rosbag2 database (its tables are missing)",
+    ),
+    (
+        r"malformed|not a database|cannot open database",
+        None,
+        "the sqlite3 file is truncated or damaged (database disk image is malformed)",
+    ),
+)
 
-def _explain(exc: BaseException, *, reading: bool = False) -> str:
-    """One line for an exception raised by rosbags (or its sqlite/mcap/zstd backends).
 
-    ``reading``: raised while streaming messages, after the bag opened fine.
+def _storage(read: Path) -> str | None:
+    """``ros1``, ``mcap`` or ``sqlite3``: what holds the records of a path rosbags opens (a
+    file, or a rosbag2 folder's storage files); None when that cannot be told."""
+    try:
+        files = sorted(read.iterdir()) if read.is_dir() else [read]
+    except OSError:
+        return None
+    kinds = {_STORAGE_BY_SUFFIX.get(p.suffix) for p in files} - {None}
+    return kinds.pop() if len(kinds) == 1 else None
+
+
+def _explain(exc: BaseException, *, reading: bool = False, storage: str | None = None) -> str:
+    """One sentence for an exception raised by rosbags (or its sqlite/mcap/zstd backends).
+
+    ``reading``: raised while streaming messages, after the bag opened fine. ``storage``: what
+    holds the bag's records (:func:`_storage`), for naming it. Known complaints become our own
+    sentences (:data:`_SENTENCES`); rosbags' other sentences are quoted as its words; what
+    Python itself raised inside rosbags (a ``TypeError``, ``struct.error``...) is not shown:
+    it would tell a user nothing (``-v`` prints the traceback).
     """
+    noun = _NOUN.get(storage or "", "the bag")
     if isinstance(exc, MemoryError):  # a length field read as gigabytes
         return (
-            "the bag is damaged: a record claims more bytes than can be allocated (a corrupt "
+            f"{noun} is damaged: a record claims more bytes than can be allocated (a corrupt "
             "length field)"
         )
     if isinstance(exc, UnicodeError):  # its args hold the whole undecodable bytes
-        text = str(exc)
+        return f"{noun} is damaged: it holds text (a name or a definition) that is not UTF-8"
+    text = " ".join(str(a) for a in exc.args) if exc.args else ""
+    text = _one_line(text).rstrip(".")
+    for pattern, only, sentence in _SENTENCES:
+        if only not in (None, storage):
+            continue
+        if found := re.search(pattern, text, re.IGNORECASE):
+            return sentence.format(*found.groups(), noun=noun)
+    # Python's own exceptions (builtins, struct.error) say nothing about the file.
+    raw = type(exc).__module__ == "builtins" or isinstance(exc, struct.error)
+    if _decompression_failed(exc):
+        detail = " (a compressed chunk does not decompress)"
+    elif raw or not text:
+        detail = ""
     else:
-        text = " ".join(str(a) for a in exc.args) if exc.args else ""
-    text = _one_line(text).rstrip(".") or type(exc).__name__
-    low = text.lower()
-    if "index looks damaged" in low or "not indexed" in low or "header could not be read" in low:
-        return (
-            "the bag's index is missing or damaged (a truncated file or a recording that was "
-            "killed?); in ROS1 'rosbag reindex' rebuilds it"
-        )
-    if "end magic" in low:
-        return "the MCAP file is truncated or damaged (its end marker is missing)"
-    if "malformed" in low or "not a database" in low:
-        return "the sqlite3 file is truncated or damaged (database disk image is malformed)"
+        detail = f" (rosbags: {text!r})"
     if reading:
-        return (
-            f"cannot read message data ({text}, {type(exc).__name__}): "
-            "the file is damaged or truncated"
-        )
-    return f"cannot read the bag: {text} ({type(exc).__name__})"
+        return f"cannot read message data: the file is damaged or truncated{detail}"
+    if detail:
+        return f"cannot read {noun}{detail}"
+    return f"{noun} is truncated or damaged: rosbags cannot parse it (-v shows where it fails)"
+
+
+def _decompression_failed(exc: BaseException) -> bool:
+    """A chunk's bz2, lz4 or zstd data that does not decompress."""
+    name = type(exc).__name__
+    return name == "ZstdError" or "lz4" in type(exc).__module__ or "data stream" in str(exc)
 
 
 def _one_line(text: str, limit: int = 200) -> str:

@@ -53,6 +53,7 @@ from scan2terrain.readers._bag_errors import (
     _explain,
     _one_line,
     _Ros1Reader,
+    _storage,
     _undecodable,
 )
 from scan2terrain.readers._bag_source import _Source, _source
@@ -243,6 +244,7 @@ class Bag:
         self._stack = stack
         self.paths = source.paths
         self._given = {str(r): p for r, p in zip(source.read, source.paths, strict=True)}
+        self._storage = _storage(source.read[0])  # for naming it in errors
         self.start_ns = int(reader.start_time)
         self.end_ns = int(reader.end_time) - 1  # rosbags' end is one past the last message
         self.topics = {
@@ -378,7 +380,8 @@ class Bag:
         except InputError:
             raise
         except Exception as exc:  # rosbags' backends raise many types mid-stream; name the file
-            raise InputError(self._owner(conns), _explain(exc, reading=True)) from exc
+            problem = _explain(exc, reading=True, storage=self._storage)
+            raise InputError(self._owner(conns), problem) from exc
 
     def _owner(self, conns: list[Connection]) -> Path:
         """The file to name for an error: in a split set, the one holding these connections."""
@@ -537,7 +540,8 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
                     reader.readers = [_Ros1Reader(p) for p in source.read]
                 reader.open()
             except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
-                raise InputError(_culprit(source, where), _explain(exc)) from exc
+                problem = _explain(exc, storage=_storage(source.read[0]))
+                raise InputError(_culprit(source, where), problem) from exc
         stack.callback(reader.close)
         if reader.message_count == 0:
             raise InputError(where, "the bag holds no messages")
