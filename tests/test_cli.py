@@ -235,6 +235,10 @@ def test_existing_output_refused_without_overwrite(
     assert code == 2 and "output folder exists (use --overwrite" in err
     assert leftovers(out) == ["keep.txt"] and leftovers(tmp_path) == ["in", "o"]
     code, _, err = run(capsys, "map2world", good, "-o", out, "--overwrite")
+    assert code == 2 and "not written by scan2terrain" in err  # not ours: kept
+    assert leftovers(out) == ["keep.txt"]
+    (out / "scan2terrain.yaml").write_text("as an earlier run leaves it")
+    code, _, err = run(capsys, "map2world", good, "-o", out, "--overwrite")
     assert code == 0, err
     assert not (out / "keep.txt").exists() and (out / "world_gz.sdf").exists()
     assert leftovers(tmp_path) == ["in", "o"]

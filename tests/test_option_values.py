@@ -119,7 +119,7 @@ def test_absurd_values_are_refused_or_work(
         code = main(argv)
     except SystemExit as exc:  # argparse: not a number, not a choice (usage line + error)
         err = capsys.readouterr().err.strip().splitlines()
-        assert exc.code == 2 and err[-1].startswith(f"scan2terrain {command}: error:"), err
+        assert exc.code == 2 and err[0].startswith(f"scan2terrain {command}: error:"), err
         return
     err = capsys.readouterr().err.strip().splitlines()
     assert code in (0, 2), (argv, err)

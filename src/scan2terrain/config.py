@@ -531,7 +531,7 @@ def _check_choices(target: Any, prefix: str = "") -> None:
 
 def _check(ok: bool, name: str, value: object, want: str) -> None:
     if not ok:
-        raise ConfigError(f"config value {name} = {value!r} is invalid: must be {want}")
+        raise ConfigError(f"{name} = {value!r} is invalid: must be {want}")
 
 
 def load_config(

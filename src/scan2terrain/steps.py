@@ -292,10 +292,18 @@ def grid_options(cfg: Config) -> None:
 
 
 def minus(name: str, v: float) -> str:
-    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0."""
-    if v == 0:
+    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0;
+    ``v`` rounded to the nanometre (28.95, not 28.950000000000003)."""
+    text = shown(abs(v))
+    if text == "0":
         return name
-    return f"{name} - {v!r}" if v > 0 else f"{name} + {-v!r}"
+    return f"{name} - {text}" if v > 0 else f"{name} + {text}"
+
+
+def shown(v: float, places: int = 9) -> str:
+    """``v`` with at most ``places`` decimals and no trailing zeros, as a user would type it."""
+    text = f"{v:.{places}f}".rstrip("0").rstrip(".")
+    return "0" if text in ("", "-0") else text
 
 
 def heightmap_options(cfg: Config) -> None:

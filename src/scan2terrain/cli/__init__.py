@@ -12,7 +12,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 from scan2terrain.cli.display import ProgressBar, TaskBar, report
-from scan2terrain.cli.parser import COMMAND_DEFAULTS, build_parser
+from scan2terrain.cli.parser import COMMAND_DEFAULTS, build_parser, flags_of, name_flags
 from scan2terrain.config import TOP_LEVEL_KEYS, load_config
 
 if TYPE_CHECKING:
@@ -70,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
 
             traceback.print_exc()
         if isinstance(exc, Scan2TerrainError):
-            print(f"scan2terrain: error: {_one_line(exc)}", file=sys.stderr)
+            text = name_flags(_one_line(exc), flags_of(parser, args.command))
+            print(f"scan2terrain: error: {text}", file=sys.stderr)
             return 2
         print(
             f"scan2terrain: internal error: {type(exc).__name__}: {_one_line(exc)} "
@@ -96,7 +97,7 @@ def _stop_on_signals() -> dict[int, Any]:
     def stop(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    saved = {}
+    saved: dict[int, Any] = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(sig) == signal.SIG_IGN:  # nohup: the user asked to run on
             continue

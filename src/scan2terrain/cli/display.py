@@ -4,6 +4,7 @@ the progress bars (tqdm, on stderr)."""
 from __future__ import annotations
 
 import math
+import shlex
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -121,7 +122,9 @@ def report(result: Result) -> str:
     side = f"{result.heightmap_side}x{result.heightmap_side} px"
     ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
     lines = [
-        f"Wrote {out}/ (voxels: {result.walls}; {result.size_z:g} m from the lowest to the"
+        f"Wrote {out}/ (no world: {result.no_world})"
+        if result.no_world
+        else f"Wrote {out}/ (voxels: {result.walls}; {result.size_z:g} m from the lowest to the"
         " highest voxel)"
         if result.geometry == "voxels"
         else f"Wrote {out}/ ({result.geometry}: {result.walls}; walls {result.size_z:g} m high)"
@@ -132,7 +135,8 @@ def report(result: Result) -> str:
     for w in result.worlds:
         p = w.placement
         # Absolute paths: the resource variables are read by a simulator started anywhere.
-        models, world = w.models.absolute(), w.world.absolute()
+        # Quoted: pasted into a shell, a path with spaces stays one word.
+        models, world = shlex.quote(str(w.models.absolute())), shlex.quote(str(w.world.absolute()))
         if p.simulator == "gz":
             lines += [
                 "  gz-sim (Garden or newer; DART physics, the default engine):",

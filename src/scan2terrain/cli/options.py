@@ -23,8 +23,10 @@ from scan2terrain.config import (
 from scan2terrain.filters.registry import FILTERS as FILTER_REGISTRY
 
 
-def common(p: argparse.ArgumentParser) -> None:
-    """Options every world command takes (their defaults are added by :func:`_state_defaults`)."""
+def common(p: argparse.ArgumentParser, *, heights: bool = True) -> None:
+    """Options every world command takes (their defaults are added by :func:`_state_defaults`);
+    ``heights``: the grid's heights are set by the user (--height, --invert), which a DEM's
+    elevations are not."""
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     p.add_argument("--config", type=Path, help="YAML config file (see configs/); flags override it")
@@ -47,12 +49,13 @@ def common(p: argparse.ArgumentParser) -> None:
         help="heightmap vertex sampling (default: 1 for gz, 2 for classic)",
     )
     t = p.add_argument_group("terrain")
-    t.add_argument(
-        "--height",
-        type=float,
-        dest="terrain.height",
-        help="metres: wall height (maps) or height of white (images)",
-    )
+    if heights:
+        t.add_argument(
+            "--height",
+            type=float,
+            dest="terrain.height",
+            help="metres: wall height (maps) or height of white (images)",
+        )
     t.add_argument(
         "--upsample",
         type=int,
@@ -91,13 +94,14 @@ def common(p: argparse.ArgumentParser) -> None:
         dest="canvas.offset_y",
         help="shift the input up by this many cells (negative crops)",
     )
-    c.add_argument(
-        "--invert",
-        action="store_const",
-        const=True,
-        dest="canvas.invert",
-        help="swap free and occupied (maps) or black and white (images)",
-    )
+    if heights:
+        c.add_argument(
+            "--invert",
+            action="store_const",
+            const=True,
+            dest="canvas.invert",
+            help="swap free and occupied (maps) or black and white (images)",
+        )
     f = p.add_argument_group("filter")
     f.add_argument(
         "--filter",
@@ -135,30 +139,25 @@ def common(p: argparse.ArgumentParser) -> None:
     o.add_argument(
         "--max-pixels", type=int, dest="max_pixels", help="refuse larger images and grids"
     )
-    o.add_argument(
-        "--max-memory",
-        type=int,
-        dest="max_memory",
-        metavar="MIB",
-        help="refuse an octree or a grid from voxels or points that would need more memory (MiB)",
-    )
     p.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
 
-def geometry_options(p: argparse.ArgumentParser) -> None:
-    """Options of the commands whose grid is occupancy (walls), not heights."""
+def geometry_options(p: argparse.ArgumentParser, *, voxels: bool = True) -> None:
+    """Options of the commands whose grid is occupancy (walls), not heights; ``voxels``: the
+    command holds voxels (an octree), so --geometry voxels is offered."""
     g = p.add_argument_group("walls (occupancy grids)")
     g.add_argument(
         "--geometry",
-        choices=GEOMETRIES,
+        choices=GEOMETRIES if voxels else tuple(k for k in GEOMETRIES if k != "voxels"),
         dest="world.geometry",
         help="how occupied cells become walls: one extruded mesh (STL/DAE/OBJ; exact, and the "
         "fastest in physics), the fewest boxes that cover them, SDF polylines, or a heightmap "
         "(slowest; 1-cell walls are knife edges); auto: mesh for occupancy grids, "
-        "heightmap for height grids; voxels (octree2world, bag2world, cloud2world): the "
-        "occupied voxels themselves in 3D, overhangs and doorways kept; map frame = world "
-        "frame in both simulators for all but heightmap (README: which geometry to pick)",
+        "heightmap for height grids; "
+        + ("voxels: the occupied voxels themselves in 3D, overhangs and doorways kept; " * voxels)
+        + "map frame = world frame in both simulators for all but heightmap (README: which "
+        "geometry to pick)",
     )
     g.add_argument(
         "--simplify",
@@ -237,6 +236,13 @@ def unknown_options(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> Non
 
 def octree_options(p: argparse.ArgumentParser) -> None:
     t = p.add_argument_group("octree and grid")
+    t.add_argument(
+        "--max-memory",
+        type=int,
+        dest="max_memory",
+        metavar="MIB",
+        help="refuse an octree or a grid from voxels or points that would need more memory (MiB)",
+    )
     t.add_argument(
         "--resolution",
         type=float,

@@ -4,8 +4,12 @@
 from __future__ import annotations
 
 import argparse
+import difflib
+import re
+import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn, cast
 
 from scan2terrain.cli.options import (
     cloud_filter_options,
@@ -47,8 +51,114 @@ COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, with what a user reads first put first: a usage mistake is the error line (a
+    mistyped option or choice with its nearest match: "did you mean --height?"), then a
+    one-line usage and where the full help is; sub-commands are made of this class too."""
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        self._given = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def error(self, message: str) -> NoReturn:
+        # An unknown option is reported first: a typo is why a required one seems missing.
+        unknown = self._unknown_options()
+        message = "; ".join(unknown) if unknown else _suggest_choice(message)
+        # The top level reports what a command left over: in that command's words.
+        parser = self._command() or self
+        parser.exit(2, f"{parser.prog}: error: {message}\n{parser._short_usage()}\n")
+
+    def _command(self) -> Parser | None:
+        subs = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
+        for word in getattr(self, "_given", []):
+            if subs and word in subs[0].choices:
+                return cast(Parser, subs[0].choices[word])
+        return None
+
+    def _unknown_options(self) -> list[str]:
+        """Each option given that this parser (or the command it names) does not take, with
+        the nearest one it does."""
+        parser = self._command() or self
+        if parser is self and any(isinstance(a, argparse._SubParsersAction) for a in self._actions):
+            return []  # no command named: the command word is the mistake
+        known = [o for a in parser._actions for o in a.option_strings]
+        words = getattr(parser, "_given", getattr(self, "_given", []))
+        found = []
+        for word in words:
+            if word == "--":
+                break
+            name = word.split("=", 1)[0]
+            if not name.startswith("-") or _NUMBER.fullmatch(name) or name == "-":
+                continue
+            if any(k == name or (name.startswith("--") and k.startswith(name)) for k in known):
+                continue
+            near = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            hint = f" (did you mean {near[0]}?)" if near else ""
+            found.append(f"unrecognized option {name}{hint}")
+        return found
+
+    def _short_usage(self) -> str:
+        words = [self.prog]
+        for a in self._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                words.append("COMMAND ...")
+            elif not a.option_strings:
+                words.append(_metavar(a) + (" ..." if a.nargs == "+" else ""))
+            elif a.required:
+                words.append(f"{a.option_strings[0]} {_metavar(a)}")
+        return f"usage: {' '.join(words)} [options]\n`{self.prog} --help` lists them all"
+
+
+def _metavar(action: argparse.Action) -> str:
+    name = action.metavar if isinstance(action.metavar, str) else action.dest
+    return name.upper()
+
+
+_NUMBER = re.compile(r"-\d+(\.\d*)?(e-?\d+)?|-\.\d+")
+
+
+def flags_of(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
+    """Config key -> the flag that sets it, for ``command`` (its longest option string)."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if command is None or not subs or command not in subs[0].choices:
+        return {}
+    flags: dict[str, str] = {}
+    for a in subs[0].choices[command]._actions:
+        if a.option_strings and ("." in a.dest or a.dest in TOP_LEVEL_KEYS):
+            flags.setdefault(a.dest, max(a.option_strings, key=len))
+    return flags
+
+
+def name_flags(message: str, flags: dict[str, str]) -> str:
+    """An error's config keys (``octree.grid``) as the flags a user types (``--grid``), the
+    keys said once at the end for a config file; keys already beside their flag stay."""
+    keys = []
+    for key in sorted(flags, key=len, reverse=True):
+        flag = flags[key]
+        pattern = re.compile(rf"(?<![\w.-]){re.escape(key)}(?![\w.])")
+        if not pattern.search(message) or f"({flag})" in message:
+            continue
+        message = pattern.sub(flag, message)
+        keys.append(key)
+    if not keys:
+        return message
+    return f"{message} (in a config file: {', '.join(sorted(keys))})"
+
+
+def _suggest_choice(message: str) -> str:
+    """argparse's "invalid choice: 'box' (choose from ...)", with the nearest choice."""
+    m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+    if m is None:
+        return message
+    choices = re.findall(r"'([^']*)'", m.group(2))
+    near = difflib.get_close_matches(m.group(1), choices, n=1, cutoff=0.5)
+    return f"{message} (did you mean '{near[0]}'?)" if near else message
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="scan2terrain",
         description="Turn maps, images and scans into Gazebo worlds lined up with the map frame.",
         epilog=EXAMPLES,
@@ -72,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     m.add_argument("map", type=Path, help="map_server YAML file")
     common(m)
-    geometry_options(m)
+    geometry_options(m, voxels=False)
     unknown_options(m)
 
     i = sub.add_parser(
@@ -258,7 +368,8 @@ def dem_command(sub: Any) -> None:
         "resampled bilinearly onto square pixels that fill the 2^n+1 image; the image is padded "
         "to 2^n+1 at the lowest height. Defaults for DEMs: --simulator gz, --bit-depth 16, "
         "--filter none (Gazebo Classic needs --bit-depth 8). Any --filter is a plain median; "
-        "--height and --invert do not apply; canvas options count heightmap pixels.",
+        "heights are the DEM's own elevations (no wall height, no inversion); canvas options "
+        "count heightmap pixels.",
         epilog="examples:\n"
         "  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif "
         "-o sfbay\n"
@@ -269,7 +380,7 @@ def dem_command(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
-    common(d)
+    common(d, heights=False)
     g = d.add_argument_group("elevation model")
     g.add_argument(
         "--resolution",

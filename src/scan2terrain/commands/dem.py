@@ -106,7 +106,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     # make_heightmap puts 0 at min(0, lowest) = 0 here; the ground's 0 is the lowest elevation.
     # Tiles keep their pixels (0 two levels below the lowest) and are raised by it.
     hm = hm.raised(z0) if isinstance(hm, TiledHeightmap) else dataclasses.replace(hm, z_min=z0)
-    notes = _dem_notes(source, dem, res, hm)
+    notes = _dem_notes(source, dem, res, hm, with_classic=cfg.world.simulator != GZ)
     extra: dict[str, bytes] = {}
     if cfg.dem.passthrough:
         name = f"{terrain_name(source, hm, cfg)}_dem"
@@ -135,8 +135,9 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     return result
 
 
-def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain) -> list[str]:
-    """What was read and where it went: for the report and the SDF comments."""
+def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain, *, with_classic: bool) -> list[str]:
+    """What was read and where it went: for the report and the SDF comments (Gazebo
+    Classic's frame only when a Classic world is written)."""
     rows, cols = dem.shape
     px, py = dem.pixel_size
     crs = dem.crs + (f" ({dem.citation})" if dem.citation else "")
@@ -172,9 +173,10 @@ def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain) -> list[str]:
             f" {hm.z_range!r} m above it)."
         )
     else:
+        classic = f"; in Gazebo Classic z = {minus('elevation', hm.z_min)} m" * with_classic
         lines.append(
-            f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m);"
-            f" in Gazebo Classic z = {minus('elevation', hm.z_min)} m."
+            f"z = elevation in gz-sim (heightmap 0 at {hm.z_min!r} m, size.z {hm.z_range!r} m)"
+            f"{classic}."
         )
     return lines + list(dem.notes)
 
