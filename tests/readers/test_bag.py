@@ -426,6 +426,53 @@ def test_missing_topic_lists_the_ones_there_are() -> None:
         bag.pick_topic(SCAN_TYPES)
 
 
+def _foxglove_scans(path: Path, topics: list[str]) -> Path:
+    """An MCAP file of Foxglove schemas with one foxglove.LaserScan on each of ``topics`` (named
+    as given: Foxglove channels often have no leading slash)."""
+    from tests.bagmaker import write_foxglove_mcap
+
+    scan = {"frame_id": "laser", "start_angle": 0.0, "end_angle": 1.0, "ranges": [1.0, 2.0]}
+    stamp = {"sec": 1_700_000_000, "nsec": 0}
+    messages = [
+        (topic, "foxglove.LaserScan", 1_700_000_000 * 10**9 + i, scan | {"timestamp": stamp})
+        for i, topic in enumerate(topics)
+    ]
+    return write_foxglove_mcap(path, messages, "json")
+
+
+def test_a_topic_is_named_with_or_without_its_leading_slash(tmp_path: Path) -> None:
+    """``--topic /scan`` and ``--topic scan`` name the same topic, as frame names do: ROS1 bags
+    store ``/scan``, Foxglove MCAP channels may be ``scan``. --topic scan on a ROS1 bag was an
+    internal error (KeyError: 'scan'), --topic /scan on a Foxglove channel 'scan' "no topic"."""
+    from scan2terrain.config import ScansConfig
+    from scan2terrain.readers.scans import plan_bag
+
+    with open_bag(FUSE) as bag:
+        for given in ("scan", "/scan", "//scan"):
+            plan = plan_bag(
+                bag, ScansConfig(topics=[given], odom_topic=given.replace("scan", "odom"))
+            )
+            assert plan.scan_topics == ["/scan"] and plan.odom_topic == "/odom"
+            assert plan.reasons[0] == "topics /scan: chosen (--topic)"
+        twice = plan_bag(bag, ScansConfig(topics=["scan", "/scan"]))
+        assert twice.scan_topics == ["/scan"]  # one topic, read once
+    fixed = {"poses": "fixed", "pose": [0.0] * 6}
+    with open_bag(_foxglove_scans(tmp_path / "fg.mcap", ["scan"])) as bag:
+        assert list(bag.topics) == ["scan"]
+        for given in ("scan", "/scan"):
+            assert bag.require(given).name == "scan"
+            plan = plan_bag(bag, ScansConfig(topics=[given], **fixed), max_range=10.0)
+            assert plan.scan_topics == ["scan"]
+        with pytest.raises(InputError, match="no topic '/points'"):
+            bag.require("/points")
+    # Both spellings recorded as two channels: each names its own; any other spelling neither.
+    with open_bag(_foxglove_scans(tmp_path / "both.mcap", ["scan", "/scan"])) as bag:
+        assert bag.require("scan").name == "scan"
+        assert bag.require("/scan").name == "/scan"
+        with pytest.raises(InputError, match=r"'//scan' could be '/scan' or 'scan'"):
+            bag.require("//scan")
+
+
 def test_legacy_rosrecord_is_refused() -> None:
     err = input_error(LEGACY, r"ROSRECORD V1\.2.*rosbag reindex old\.bag")
     assert err.path == LEGACY

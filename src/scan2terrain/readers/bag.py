@@ -311,10 +311,23 @@ class Bag:
         ]
 
     def require(self, topic: str, msgtypes: str | Iterable[str] | None = None) -> TopicInfo:
-        """The topic's info, or an InputError if it is missing, skipped or of another type."""
+        """The topic's info, or an InputError if it is missing, skipped or of another type.
+
+        ``topic`` may be given with or without its leading slash (``/scan`` and ``scan`` name
+        the same topic, as frame names do: ROS1 bags record ``/scan``, Foxglove MCAP channels
+        often ``scan``); a topic recorded under exactly the given name comes first.
+        """
         info = self.topics.get(topic)
-        if info is None and not topic.startswith("/"):
-            info = self.topics.get("/" + topic)
+        if info is None:
+            key = topic.strip().lstrip("/")
+            same = [t for name, t in self.topics.items() if name.lstrip("/") == key]
+            if len(same) > 1:
+                raise InputError(
+                    self.path,
+                    f"topic {topic!r} could be {' or '.join(repr(t.name) for t in same)}: "
+                    "give it as recorded",
+                )
+            info = same[0] if same else None
         if info is None:
             raise InputError(
                 self.path, f"no topic {topic!r} in the bag; it has: {self.describe_topics()}"

@@ -101,16 +101,18 @@ def plan_bag(bag: Bag, cfg: ScansConfig, *, max_range: float = -1.0) -> BagPlan:
     plan = BagPlan(start_ns=resolve_time(cfg.start, bag), end_ns=resolve_time(cfg.end, bag))
     path = bag.path
     if cfg.topics:
-        for t in cfg.topics:
-            bag.require(t, (*SCAN_TYPES, *MAP_TYPES))
-        maps = [t for t in cfg.topics if bag.topics[t].msgtype in MAP_TYPES]
-        if maps and len(cfg.topics) > 1:
+        # The bag's names: 'scan' and '/scan' are one topic (Bag.require), read once.
+        chosen = list(
+            dict.fromkeys(bag.require(t, (*SCAN_TYPES, *MAP_TYPES)).name for t in cfg.topics)
+        )
+        maps = [t for t in chosen if bag.topics[t].msgtype in MAP_TYPES]
+        if maps and len(chosen) > 1:
             raise InputError(path, "give either scan topics or one OccupancyGrid topic, not both")
         if maps:
             plan.map_topic = maps[0]
         else:
-            plan.scan_topics = list(cfg.topics)
-        plan.reasons.append(f"topics {', '.join(cfg.topics)}: chosen (--topic)")
+            plan.scan_topics = chosen
+        plan.reasons.append(f"topics {', '.join(chosen)}: chosen (--topic)")
     else:
         scans = scan_topics(bag)
         maps = sorted(n for n, t in bag.topics.items() if t.msgtype in MAP_TYPES and t.count)
