@@ -458,14 +458,18 @@ REFUSED = {
     "legacy-v1.2": (LEGACY, "'#ROSRECORD V1.2' bag format", False),
     "nav2-zstd": (
         NAV2,
-        "no usable topic (LaserScan, PointCloud2 or OccupancyGrid); the bag has: "
+        "nothing to map and no trajectory: no LaserScan, PointCloud2 or OccupancyGrid topic, "
+        "and no odometry, nor tf linking a fixed frame (map, odom) to a robot base (base_link, "
+        "base_footprint); the bag has: "
         "/clock (rosgraph_msgs/msg/Clock, 231), /cmd_vel_smoothed (geometry_msgs/msg/Twist, 231), "
         "/local_costmap/costmap (nav2_msgs/msg/Costmap, 231)",
         False,
     ),
     "gridmap-unknown-type": (
         GRIDMAP,
-        "no usable topic (LaserScan, PointCloud2 or OccupancyGrid); the bag has: "
+        "nothing to map and no trajectory: no LaserScan, PointCloud2 or OccupancyGrid topic, "
+        "and no odometry, nor tf linking a fixed frame (map, odom) to a robot base (base_link, "
+        "base_footprint); the bag has: "
         "/grid_map (grid_map_msgs/msg/GridMap, 4, cannot be decoded)",
         True,
     ),

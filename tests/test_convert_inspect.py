@@ -216,7 +216,7 @@ def test_inspect_lists_skipped_topics(capsys: pytest.CaptureFixture[str]) -> Non
     assert "  skipped: /grid_map: message type grid_map_msgs/msg/GridMap has no definition" in (
         stdout
     )
-    assert "  bag2world would stop: no usable topic" in stdout
+    assert "  bag2world would stop: nothing to map and no trajectory" in stdout
 
 
 def test_inspect_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -730,3 +730,34 @@ def test_lookups_invert_and_chain(tree: tuple[TfBuffer, list[int]], a: str, b: s
         assert_same(ab.compose(bc), ac, atol=1e-9)
         r = ab.rotation
         np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+
+
+# --- rotation matrices back to quaternions; the sample times between two frames ------------------
+
+
+def test_matrices_to_quaternions_inverts_scipy() -> None:
+    from scan2terrain.readers.poses import _matrices_to_quaternions
+
+    rot = Rotation.random(2000, random_state=5)
+    q = rot.as_quat()  # xyzw
+    q[:4] = np.eye(4)  # 180-degree turns about x, y, z, and the identity: each branch
+    q = np.where(q[:, 3:4] < 0, -q, q)
+    got = _matrices_to_quaternions(Rotation.from_quat(q).as_matrix())
+    assert (got[:, 3] >= 0).all()
+    # the same rotation (q and -q are one when w = 0)
+    dots = np.abs(np.einsum("ij,ij->i", got, q))
+    np.testing.assert_allclose(dots, 1.0, rtol=0, atol=1e-15)
+
+
+def test_sample_times_are_the_dynamic_edges_between_two_frames() -> None:
+    buf = TfBuffer()
+    buf.add("map", "odom", 10, (0, 0, 0), (0, 0, 0, 1))
+    buf.add("map", "odom", 30, (0, 0, 0), (0, 0, 0, 1))
+    for t in (5, 10, 20, 40):
+        buf.add("odom", "base_link", t, (t, 0, 0), (0, 0, 0, 1))
+    buf.add("base_link", "laser", 0, (0.2, 0, 0), (0, 0, 0, 1), static=True)
+    buf.add("map", "gps", 7, (0, 0, 0), (0, 0, 0, 1))
+    assert buf.sample_times("map", "laser").tolist() == [5, 10, 20, 30, 40]
+    assert buf.sample_times("laser", "base_link").tolist() == []  # a static edge only
+    assert buf.sample_times("gps", "odom").tolist() == [7, 10, 30]
+    assert buf.sample_times("map", "nowhere").tolist() == []

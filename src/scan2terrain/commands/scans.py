@@ -95,12 +95,14 @@ def bag2world(
         from scan2terrain.commands import stream
 
         with open_bag(list(bags)) as bag:
-            is_map = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range).map_topic is not None
-        if not is_map:
+            planned = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+        if planned.scan_topics:  # a map, or a trajectory only, is read as without --stream
             streamed = stream.stream_bag(bags, cfg, stream_progress)
             return stream.streamed_world(streamed, Path(bags[0]), out, cfg, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+        if plan.trajectory_only:
+            return _trajectory_folder(bag, plan, out, cfg, overwrite=overwrite)
         if plan.map_topic is not None:
             msg, _ = map_message(bag, plan, cfg.scans.map_message)
             if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
@@ -139,6 +141,30 @@ def bag2world(
         )  # fmt: skip
     result.notes[:0] = ingest.notes
     return result
+
+
+def _trajectory_folder(
+    bag: Bag, plan: BagPlan, out: Path, cfg: Config, *, overwrite: bool
+) -> Result:
+    """A bag with poses and nothing to map: OUT/trajectory.tum (and the effective config), no
+    world; the report's first line says so."""
+    from scan2terrain.exporters.trajectory import tum_bytes
+    from scan2terrain.readers.scans import robot_trajectory
+    from scan2terrain.world.folder import WorldFolder, write_world_folder
+
+    track, what = robot_trajectory(bag, cfg.scans, plan)
+    span = (track.end_ns - track.start_ns) / 1e9
+    data = tum_bytes(
+        track.times_ns,
+        track.translations,
+        track.quaternions_xyzw,
+        comment=f"{what} from {bag.path.name}, by scan2terrain\nt x y z qx qy qz qw",
+    )
+    notes = [*plan.reasons, f"trajectory: {len(track)} poses of {what}, {span:.3f} s"]
+    result = Result(out, notes=notes)
+    result.no_world = "nothing to map, the bag has no scans; the robot's trajectory only"
+    folder = WorldFolder(bag.path, result, [], None, None, {"trajectory.tum": data})
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 def bag_octree(
@@ -470,6 +496,11 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
     from scan2terrain.types import ScanCounts
 
     plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+    if plan.trajectory_only:
+        raise InputError(
+            bag.path,
+            "no scans: nothing to convert (bag2world writes the trajectory of its poses)",
+        )
     if plan.map_topic is not None:
         raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to convert")
     counts = ScanCounts()

@@ -74,6 +74,34 @@ def _quaternions_to_matrices(q: Floats) -> Floats:
     return r
 
 
+def _matrices_to_quaternions(r: Floats) -> Floats:
+    """Rotation matrices (K, 3, 3) -> unit quaternions (K, 4) xyzw with w >= 0 (Shepperd: each
+    from its largest component, so none is taken from a difference of nearly equal terms)."""
+    m = np.asarray(r, dtype=np.float64)
+    m00, m11, m22 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    # 4 w^2, 4 x^2, 4 y^2, 4 z^2
+    four = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
+                     1 - m00 - m11 + m22], axis=1)  # fmt: skip
+    k = np.argmax(four, axis=1)
+    s = 2.0 * np.sqrt(np.maximum(four[np.arange(len(k)), k], 0.0))  # 4 |largest component|
+    wx, wy, wz = m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]
+    xy, xz, yz = m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1]
+    # Rows: the largest component k; columns: w, x, y, z times s.
+    table = np.stack(
+        [
+            np.stack([s * s / 4, wx, wy, wz], axis=1),
+            np.stack([wx, s * s / 4, xy, xz], axis=1),
+            np.stack([wy, xy, s * s / 4, yz], axis=1),
+            np.stack([wz, xz, yz, s * s / 4], axis=1),
+        ],
+        axis=1,
+    )
+    wxyz = table[np.arange(len(k)), k] / s[:, None]
+    q = wxyz[:, [1, 2, 3, 0]]
+    q = np.where(q[:, 3:4] < 0, -q, q)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)  # type: ignore[no-any-return]
+
+
 def _sign_continuous(q: Floats) -> Floats:
     """Flip signs so that consecutive quaternions (M, 4) have a non-negative dot product."""
     if len(q) < 2:

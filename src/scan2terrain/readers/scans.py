@@ -56,7 +56,7 @@ from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
-from scan2terrain.readers.poses import pose6
+from scan2terrain.readers.poses import _matrices_to_quaternions, pose6
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
 from scan2terrain.types import HeightGrid, Pose2D, Scan, ScanCounts, Transform, normalise_frame
@@ -80,6 +80,13 @@ class BagPlan:
     end_ns: int | None = None
     reasons: list[str] = field(default_factory=list)
     tf: TfBuffer | None = None  #: the bag's tf tree, read once
+    #: The robot base frame whose trajectory is written when there is nothing to map (tf poses).
+    base_frame: str = ""
+
+    @property
+    def trajectory_only(self) -> bool:
+        """No scans and no map: the bag gives the robot's trajectory and nothing to map."""
+        return not self.scan_topics and self.map_topic is None
 
 
 def scan_topics(bag: Bag) -> list[str]:
@@ -134,11 +141,8 @@ def plan_bag(bag: Bag, cfg: ScansConfig, *, max_range: float = -1.0) -> BagPlan:
                 f"{', '.join(maps)}",
             )
         else:
-            raise InputError(
-                path,
-                "no usable topic (LaserScan, PointCloud2 or OccupancyGrid); the bag has: "
-                + bag.describe_topics(),
-            )
+            _plan_trajectory(bag, cfg, plan)
+            return plan
     if plan.map_topic is not None:
         bag.require_messages([plan.map_topic], plan.start_ns, plan.end_ns)
         return plan
@@ -156,6 +160,109 @@ def plan_bag(bag: Bag, cfg: ScansConfig, *, max_range: float = -1.0) -> BagPlan:
             )
     _plan_poses(bag, cfg, plan)
     return plan
+
+
+#: Robot base frames a trajectory is written of, from tf, in this order (REP 105's names).
+BASE_FRAMES = ("base_link", "base_footprint")
+
+
+def _plan_trajectory(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
+    """A bag without scans or a map: plan the robot's trajectory (tf: a base frame in the fixed
+    frame, else odometry), or refuse: nothing to map and nothing to follow the robot by."""
+    nothing = "nothing to map (no LaserScan, PointCloud2 or OccupancyGrid topic)"
+    choice = cfg.poses
+    if choice == "auto" and (cfg.pose is not None or cfg.trajectory is not None):
+        choice = "fixed" if cfg.pose is not None else "trajectory"
+    if choice in ("fixed", "trajectory"):
+        given = "--pose" if choice == "fixed" else "--trajectory FILE"
+        raise InputError(
+            bag.path,
+            f"{nothing}, and with {given} (--poses {choice}) there is no trajectory of the bag "
+            f"to write; the bag has: {bag.describe_topics()}",
+        )
+    has_tf = bool(bag.topics_of_type(TF_TYPES))
+    odoms = bag.topics_of_type(ODOMETRY_TYPES)
+    if choice in ("auto", "tf") and has_tf:
+        plan.tf = plan.tf or read_tf(bag, cfg)
+        fixed = normalise_frame(cfg.fixed_frame) if cfg.fixed_frame else plan.tf.fixed_frame()
+        if fixed is not None and fixed in plan.tf.frames():
+            root = _root(plan.tf, fixed)
+            plan.base_frame = next(
+                (b for b in BASE_FRAMES if b in plan.tf.frames() and _root(plan.tf, b) == root),
+                "",
+            )
+        if plan.base_frame:
+            assert fixed is not None
+            plan.poses, plan.fixed_frame = "tf", fixed
+    if not plan.base_frame and (choice == "odom" or (choice == "auto" and odoms)):
+        plan.odom_topic = bag.pick_topic(ODOMETRY_TYPES, cfg.odom_topic).name
+        plan.poses, plan.fixed_frame = "odom", "odom"
+    if not plan.poses:
+        frames = sorted(plan.tf.frames()) if plan.tf is not None else []
+        tf_has = f"; tf frames: {', '.join(frames)}" if frames else ""
+        raise InputError(
+            bag.path,
+            f"nothing to map and no trajectory: no LaserScan, PointCloud2 or OccupancyGrid "
+            f"topic, and no odometry, nor tf linking a fixed frame (map, odom) to a robot base "
+            f"({', '.join(BASE_FRAMES)}){tf_has}; the bag has: {bag.describe_topics()}",
+        )
+    how = (
+        f"{plan.base_frame} in '{plan.fixed_frame}' (tf)"
+        if plan.poses == "tf"
+        else f"the robot base in the odometry frame ({plan.odom_topic})"
+    )
+    plan.reasons.append(
+        f"{nothing}: bag2world writes the robot's trajectory, {how}, as OUT/trajectory.tum "
+        "(TUM), and no world"
+    )
+
+
+def robot_trajectory(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> tuple[PoseTrack, str]:
+    """The trajectory a :attr:`BagPlan.trajectory_only` plan names, within its time range, and
+    what it is (``base_link in odom (odometry /odom)``): odometry as recorded (each message's
+    stamp, bag time when zero), or tf's base frame in the fixed frame at every sample time of
+    the dynamic edges between them where all of them are known (no extrapolation).
+
+    Raises
+    ------
+    InputError
+        No sample in the range, or tf that never gives the pose at one time.
+    """
+    lo = -(1 << 63) if plan.start_ns is None else plan.start_ns
+    hi = (1 << 63) - 1 if plan.end_ns is None else plan.end_ns
+    if plan.poses == "odom":
+        assert plan.odom_topic is not None
+        stamps, msgs = [], []
+        for _, t_ns, msg in bag.messages([plan.odom_topic], plan.start_ns, plan.end_ns):
+            stamps.append(t_ns)
+            msgs.append(msg)
+        if not msgs:
+            raise InputError(bag.path, f"{plan.odom_topic}: no odometry message in range")
+        track = odometry_track(
+            np.asarray(stamps, dtype=np.int64), msgs, source=f"{bag.path}:{plan.odom_topic}"
+        )
+        what = f"{track.child_frame_id} in {track.frame_id} (odometry {plan.odom_topic})"
+        return track, what
+    tf = plan.tf or read_tf(bag, cfg)
+    fixed, base = plan.fixed_frame, plan.base_frame
+    times = tf.sample_times(fixed, base)
+    times = times[(times >= lo) & (times <= hi)]
+    valid, r, t = tf.lookup_many(fixed, base, times)
+    if not valid.any():
+        why = (
+            tf.why_not(fixed, base, int(times[0]))
+            if len(times)
+            else "no tf sample moves it in range (static transforms only?)"
+        )
+        raise InputError(bag.path, f"no pose of '{base}' in '{fixed}' from tf: {why}")
+    track = PoseTrack(
+        times[valid],
+        t[valid],
+        _matrices_to_quaternions(r[valid]),
+        frame_id=fixed,
+        child_frame_id=base,
+    )
+    return track, f"{base} in {fixed} (tf)"
 
 
 def _short(msgtype: str | None) -> str:

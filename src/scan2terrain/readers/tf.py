@@ -423,6 +423,21 @@ class TfBuffer:
             r, p = _compose(r_e, p_e, r, p)
         return valid, r, p
 
+    def sample_times(self, target: str, source: str) -> Ints:
+        """Every sample time (nanoseconds, sorted, distinct) of the dynamic edges between two
+        frames: the times at which the pose of ``source`` in ``target`` was recorded. Empty
+        when the frames are unknown, not connected, or linked by static edges only."""
+        target, source = normalise_frame(target), normalise_frame(source)
+        path = self._path(target, source) if {target, source} <= self.frames() else None
+        if path is None:
+            return np.zeros(0, dtype=np.int64)
+        times = [
+            self._track(child).times_ns
+            for child in path[0] + path[1]
+            if not self._edges[child].static
+        ]
+        return np.unique(np.concatenate(times)) if times else np.zeros(0, dtype=np.int64)
+
     def lookup_many(self, target: str, source: str, times_ns: ArrayLike) -> Lookup:
         """Poses of ``source`` in ``target`` at many times: ``p_target = R @ p_source + t``.
 

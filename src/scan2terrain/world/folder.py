@@ -35,6 +35,7 @@ SPAWN_FILE = "spawn.yaml"
 EXTRA_ABOUT = {
     "octree": "the octree, as OctoMap's .bt (octovis, octomap_server, octree2world)",
     "occupied_voxels": "the occupied voxels' centres",
+    "trajectory": "the robot's trajectory (TUM: t x y z qx qy qz qw, what --trajectory reads)",
 }
 
 
@@ -74,6 +75,7 @@ class Result:
     tiles: tuple[int, int] = (1, 1)  #: heightmap tiles along y and x (terrain.max_side)
     spawn: Spawn | None = None  #: where a robot can start, map frame (each world's: worlds)
     preview_label: str = ""  #: what preview.png shows, for the report
+    no_world: str = ""  #: why the folder holds no world (a bag with nothing to map), or ""
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,7 @@ class WorldFolder:
     result: Result  #: the report so far (notes are added to, never replaced)
     worlds: list[SimWorld]
     map_out: OccupancyGrid | None  #: the navigation map in world axes, or None
-    preview: Preview
+    preview: Preview | None  #: None: nothing to preview (no world)
     extra: ExtraFiles  #: more files at the top (octree.bt, occupied voxels)
 
 
@@ -254,13 +256,13 @@ def _write_tail(
     cfg: Config,
     *,
     source: Path,
-    preview: Preview,
+    preview: Preview | None,
     extra: ExtraFiles | None,
 ) -> None:
     """Preview, extra files and the effective config, as every command writes them."""
     import yaml
 
-    if cfg.output.preview:
+    if cfg.output.preview and preview is not None:
         result.preview = od.write("preview.png", preview.png)
         result.preview_label = preview.label
     if result.spawn is not None and result.worlds:
