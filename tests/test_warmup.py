@@ -3,14 +3,23 @@ signature they use is in numba's cache."""
 
 from __future__ import annotations
 
+import json
 import os
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from tests.conftest import FIXTURES
+
+NOTE = (
+    "scan2terrain: compiling numba kernels into numba's cache (once; 30 s to 2 minutes on 2 "
+    "cores; `python -m scan2terrain.warmup` compiles them all ahead)"
+)
 
 RUN = """
 import sys, tempfile
@@ -62,19 +71,79 @@ def test_every_kernel_module_is_listed() -> None:
     assert jitted <= set(KERNEL_MODULES), jitted - set(KERNEL_MODULES)
 
 
-def test_a_cold_cache_is_announced_in_one_line(
+def test_compiling_is_announced_when_it_starts_and_timed_when_done(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from scan2terrain import warmup
-    from scan2terrain.cli import main
+    """The note comes when numba compiles something during the command (here a kernel that is
+    in no cache), and a last line says how long compiling took; -q says neither."""
+    import numba
 
-    monkeypatch.setattr(warmup, "cold", lambda: True)
+    from scan2terrain.cli import main
+    from scan2terrain.commands import voxels
+
+    real = voxels.octree2world
+
+    def compiling(*args: Any, **kwargs: Any) -> Any:
+        numba.njit(lambda x: x + 1)(1)  # a new function each call: compiled each time
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(voxels, "octree2world", compiling)
     tree = str(FIXTURES / "octomap/geb079.bt")
     assert main(["octree2world", tree, "-o", str(tmp_path / "a")]) == 0
-    err = capsys.readouterr().err.splitlines()
-    assert len([line for line in err if "compiling the numba kernels" in line]) == 1
+    notes = [line for line in capsys.readouterr().err.splitlines() if "numba" in line]
+    assert notes[0] == NOTE and len(notes) == 2, notes
+    assert re.fullmatch(
+        r"scan2terrain: compiled numba kernels in [\d.]+ s; later runs load them from the cache",
+        notes[1],
+    )
     assert main(["octree2world", tree, "-o", str(tmp_path / "b"), "-q"]) == 0
     assert capsys.readouterr().err == ""
+    monkeypatch.setattr(voxels, "octree2world", real)  # compiles nothing: says nothing
+    assert main(["octree2world", tree, "-o", str(tmp_path / "c")]) == 0
+    assert capsys.readouterr().err == ""
+
+
+CACHE_PATHS = """
+import json
+from scan2terrain.warmup import dispatchers
+print(json.dumps({d.__module__: d._cache._cache_path for d in dispatchers()}))
+"""
+#: Kernel modules a cloud2world run on a PCD file does not use (ray boxes, streamed tiles, LAS,
+#: outlines): nothing of theirs in the cache must not make it announce compiling.
+UNUSED_BY_CLOUD2WORLD = ("_raybox", "_tile_kernels", "_las_kernels", "_outline_kernels")
+
+
+def _cache_paths(env: dict[str, str]) -> dict[str, Path]:
+    done = subprocess.run(
+        [sys.executable, "-c", CACHE_PATHS], env=env, check=True, capture_output=True, text=True
+    )
+    return {module: Path(path) for module, path in json.loads(done.stdout).items()}
+
+
+def test_a_command_that_compiles_nothing_says_nothing_of_compiling(tmp_path: Path) -> None:
+    """cloud2world said "first run: compiling the numba kernels ... (about 30 s)" on every run
+    while a kernel module it never uses had nothing in numba's cache (a ``pip install -e .``
+    without the warm-up): runs of 2 s that compiled nothing. A cache holding the warm-up's
+    kernels but those modules': no note."""
+    py = sys.executable
+    subprocess.run([py, "-m", "scan2terrain.warmup"], check=True, capture_output=True)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    warm, fresh = _cache_paths(dict(os.environ)), _cache_paths(env)
+    for module, folder in warm.items():
+        stem = module.rsplit(".", 1)[-1]
+        if stem not in UNUSED_BY_CLOUD2WORLD:
+            fresh[module].mkdir(parents=True, exist_ok=True)
+            for f in folder.glob(f"{stem}.*.nb[ic]"):
+                shutil.copy2(f, fresh[module])
+    pcd = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    done = subprocess.run(
+        [py, "-m", "scan2terrain.cli", "cloud2world", pcd, "-o", tmp_path / "w"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0 and done.stderr == "", done.stderr
 
 
 NO_BLAS_PROBE = """

@@ -9,8 +9,10 @@ non-editable ``pip install``). Later processes load the machine code instead of 
 two cores or more, two processes compile its parts (:data:`PARTS`) side by side, then this one
 loads them all: 23 s here, against 35 s in one process.
 
-:func:`cold` tells whether any kernel has never been cached, so that the CLI can say, in one
-line, why the first run of a command is slow.
+:func:`cold` tells whether any kernel module has never been cached (the warm-up's own test).
+:class:`CompileWatch` tells the CLI when numba really compiles during a command, so that it says
+so then, and how long it took afterwards; a module-level guess said "compiling" on every run of
+a command while some kernel module it never uses stayed out of the cache.
 """
 
 from __future__ import annotations
@@ -72,6 +74,74 @@ def cold() -> bool:
         not any(folder.glob(f"{module.rsplit('.', 1)[-1]}.*.nbi"))
         for module, folder in folders.items()
     )
+
+
+#: What the CLI says when numba starts compiling during a command (it says how long it took
+#: afterwards). From an empty cache on this 2-core machine: the whole warm-up 38-40 s when idle,
+#: 100 s and 288 s with other work on the cores (load 8); a first cloud2world 74 s.
+COMPILING = (
+    "compiling numba kernels into numba's cache (once; 30 s to 2 minutes on 2 cores; "
+    "`python -m scan2terrain.warmup` compiles them all ahead)"
+)
+
+
+class CompileWatch:
+    """Notices numba compiling while a block runs, by numba's compile events: they are sent
+    only for a signature that is not in the cache (loading one from the cache sends none), so
+    what is noticed is a real compilation.
+
+    ``on_start`` is called once, when the first compilation begins. :attr:`seconds` is the time
+    spent compiling (a kernel's callees, compiled within it, are counted once). numba compiles
+    under one global lock, so the events of two threads never interleave. Compilations in other
+    processes (Dask workers) are not seen.
+    """
+
+    def __init__(self, on_start: Callable[[], None]) -> None:
+        self._on_start = on_start
+        self.compiled = False
+        self.seconds = 0.0
+        self._depth = 0
+        self._since = 0.0
+        self._listener: Any = None
+
+    def __enter__(self) -> CompileWatch:
+        from numba.core import event
+
+        import scan2terrain._numba  # noqa: F401  (numba readied as the kernels need it)
+
+        watch = self
+
+        class _Listener(event.Listener):
+            def on_start(self, _event: Any) -> None:
+                watch._started()
+
+            def on_end(self, _event: Any) -> None:
+                watch._ended()
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)  # type: ignore[no-untyped-call]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)  # type: ignore[no-untyped-call]
+        if self._depth:  # left while compiling (an exception)
+            self._depth = 1
+            self._ended()
+
+    def _started(self) -> None:
+        self._depth += 1
+        if self._depth == 1:
+            self._since = time.perf_counter()
+            if not self.compiled:
+                self.compiled = True
+                self._on_start()
+
+    def _ended(self) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._since
 
 
 def warm(parts: tuple[str, ...] = ()) -> float:
@@ -223,8 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not cold():  # nothing to do, nothing to say (setup runs this every time)
         return 0
-    print("scan2terrain: compiling the numba kernels once into numba's cache (about 30 s)...",
-          flush=True)  # fmt: skip
+    print("scan2terrain: compiling the numba kernels once into numba's cache (30 s to 2"
+          " minutes on 2 cores)...", flush=True)  # fmt: skip
     seconds = warm_side_by_side()
     print(f"scan2terrain: kernels compiled in {seconds:.0f} s; later runs load them")
     return 0

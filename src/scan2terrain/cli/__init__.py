@@ -142,15 +142,36 @@ def _run(args: argparse.Namespace) -> int:
     if out is not None and side_inputs:  # files besides the command's input never go either
         refuse_existing(out, args.overwrite, tuple(side_inputs))
     if args.command in NUMBA_COMMANDS and not args.quiet:
-        from scan2terrain.warmup import cold
+        # Said when numba really compiles (a cache miss), and how long it took, once done.
+        from scan2terrain.warmup import CompileWatch
 
-        if cold():
+        with CompileWatch(on_start=_say_compiling) as watch:
+            code = _command(args, cfg)
+        if watch.compiled:
+            took = f"{watch.seconds:.0f}" if watch.seconds >= 1 else f"{watch.seconds:.1f}"
             print(
-                "scan2terrain: first run: compiling the numba kernels into numba's cache (about"
-                " 30 s, once; `python -m scan2terrain.warmup` does it ahead)",
+                f"scan2terrain: compiled numba kernels in {took} s; later runs load them from "
+                "the cache",
                 file=sys.stderr,
-                flush=True,
             )
+        return code
+    return _command(args, cfg)
+
+
+def _say_compiling() -> None:
+    """The compile note, on a line of its own even under a progress bar."""
+    from scan2terrain.warmup import COMPILING
+
+    line = f"scan2terrain: {COMPILING}"
+    if "tqdm" in sys.modules:  # a bar may be drawn: tqdm clears it, writes, redraws it
+        from tqdm import tqdm
+
+        tqdm.write(line, file=sys.stderr)
+    else:
+        print(line, file=sys.stderr, flush=True)
+
+
+def _command(args: argparse.Namespace, cfg: Config) -> int:
     if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
         return _run_scans(args, cfg)
     if args.command == "map2world":
