@@ -13,6 +13,9 @@ from scan2terrain.grids.occupancy import to_rank
 
 #: Panels wider or taller than this are decimated (every k-th cell) to keep previews small.
 MAX_PANEL = 2048
+#: Previews narrower than this are scaled up by a whole factor (each cell a k x k block of
+#: pixels), as long as a panel stays within MAX_PANEL: a 20 x 20 map was a 76 x 20 pixel PNG.
+MIN_WIDTH = 600
 GAP = 8
 #: Palette entries for the difference marks; the faded panel only uses 128..255.
 RED, BLUE = 1, 2
@@ -47,6 +50,7 @@ def preview_png(before: NDArray[Any], after: NDArray[Any] | None, *, occupancy: 
     canvas[:, :w] = grey_b
     canvas[:, w + GAP : 2 * w + GAP] = grey_a
     canvas[:, 2 * w + 2 * GAP :] = diff
+    canvas = _scaled_up(canvas, (h, w))
     palette = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)
     palette[RED], palette[BLUE] = (220, 30, 30), (30, 80, 230)
     img = Image.frombuffer(
@@ -62,10 +66,21 @@ def _one_panel(before: NDArray[Any], occupancy: bool) -> bytes:
     from PIL import Image
 
     step = max(1, -(-max(before.shape) // MAX_PANEL))
-    grey = np.ascontiguousarray(_grey(np.flipud(before)[::step, ::step], occupancy))
+    grey = _grey(np.flipud(before)[::step, ::step], occupancy)
+    grey = np.ascontiguousarray(_scaled_up(grey, grey.shape))
     buf = io.BytesIO()
     Image.fromarray(grey, mode="L").save(buf, format="PNG", compress_level=1)
     return buf.getvalue()
+
+
+def _scaled_up(image: NDArray[np.uint8], panel: tuple[int, ...]) -> NDArray[np.uint8]:
+    """``image`` with each pixel a k x k block: the smallest whole k that makes it
+    :data:`MIN_WIDTH` wide, but no more than keeps a ``panel`` (rows, cols) within
+    :data:`MAX_PANEL`; 1 for an image that is wide enough."""
+    k = min(-(-MIN_WIDTH // image.shape[1]), MAX_PANEL // max(panel))
+    if k <= 1:
+        return image
+    return np.repeat(np.repeat(image, k, axis=0), k, axis=1)
 
 
 def _grey(a: NDArray[Any], occupancy: bool) -> NDArray[np.uint8]:
