@@ -17,7 +17,10 @@ The steps, each vectorised over a chunk's voxels (no Python loop per voxel or pe
 4. No T-junctions: every rectangle corner that lies inside another rectangle's edge is inserted
    into that edge, so the two faces that share a stretch of edge share all of its vertices. A
    rectangle is then a convex polygon with collinear points: a fan from a corner whose two edges
-   hold no inserted point (n - 2 triangles), else a fan from its centre.
+   hold no inserted point (n - 2 triangles), else a fan from its centre; a rectangle more than
+   ``SPINE_RATIO`` times longer than wide with a point moved by step 5 on its boundary, from
+   points on its midline (:mod:`._voxel_spine`: a far fan apex would let the move turn a
+   triangle over).
 5. 2-manifold where voxels touch only along an edge or at a corner: a lattice vertex gets one
    copy per *sheet* of surface around it, from the occupancy of the 8 voxels around it
    (:func:`_sheet_tables`: the surface faces around each of its 6 half-edges are paired, those of
@@ -46,6 +49,7 @@ from scan2terrain.geometry._voxel_contacts import (
     _sheet_tables,
 )
 from scan2terrain.geometry._voxel_lattice import _CodeSet, _Lattice, _lex_order, _unique_rows
+from scan2terrain.geometry._voxel_spine import SPINE_RATIO, spine_triangles
 from scan2terrain.geometry.mesh import Mesh
 
 __all__ = ["SPLIT", "SPLIT_MAX", "TooManyChunks", "TooManyTriangles", "VoxelChunk", "mesh_voxels"]
@@ -322,6 +326,10 @@ class _Polygons:
     centre: NDArray[np.float64]  #: (R, 3) polygon centres (lattice units)
     label: NDArray[np.int64]
     triangle_count: NDArray[np.int64]
+    lo: NDArray[np.int64]  #: (R, 2) the rectangle's corner (u0, v0)
+    hi: NDArray[np.int64]  #: (R, 2) and (u1, v1)
+    direction: NDArray[np.int64]  #: (R,) index into _DIRS
+    layer: NDArray[np.int64]  #: (R,)
 
 
 def _to3d(
@@ -467,7 +475,12 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     fan = np.where(has_free, fan_pos, -1)
     tri = np.where(has_free, size - 2, size)
     centre = (corners[:, 0] + corners[:, 2]) / 2.0
-    return _Polygons(start, size, points, midpoint, block, fan, centre, r.label, tri)
+    lo_uv = np.column_stack([r.u0, r.v0])
+    hi_uv = np.column_stack([r.u1, r.v1])
+    return _Polygons(
+        start, size, points, midpoint, block, fan, centre, r.label, tri, lo_uv, hi_uv,
+        r.direction, r.layer,
+    )  # fmt: skip
 
 
 def _corners_inside(
@@ -537,6 +550,25 @@ def _ranges(first: NDArray[np.int64], count: NDArray[np.int64]) -> NDArray[np.in
 _NORMAL_STEP = np.array([sign * (1 << axis) for axis, sign in _DIRS], np.int64)
 
 
+def _in_plane2(
+    p: _Polygons, pts: NDArray[np.int64], polys: NDArray[np.int64], diag: _Diagonals
+) -> NDArray[np.int64]:
+    """The in-plane (u, v) of the points ``pts`` of the polygons ``polys`` (in that order),
+    doubled, where they lie before any move: lattice points as they are, midpoints from their
+    diagonal's line."""
+    doubled = 2 * p.points[pts]
+    mid = p.midpoint[pts]
+    at = np.flatnonzero(mid >= 0)
+    line = diag.line[mid[at]]
+    t = line[:, 0]
+    doubled[at, t] = diag.along[mid[at]]
+    doubled[at, _OTHER[t, 0]] = line[:, 1]
+    doubled[at, _OTHER[t, 1]] = line[:, 2]
+    axes = _AXES[p.direction[np.repeat(polys, p.size[polys])]]
+    rows = np.arange(len(pts))
+    return np.column_stack([doubled[rows, axes[:, 1]], doubled[rows, axes[:, 2]]])
+
+
 def _triangles(
     p: _Polygons, grid: _Lattice, diag: _Diagonals, hair: float
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -574,13 +606,35 @@ def _triangles(
     # Midpoints of diagonal edges: the ones used, in their order.
     used, mid_id = np.unique(p.midpoint[~lattice], return_inverse=True)
     vid[~lattice] = n_lattice + mid_id.reshape(-1)
+    # Long rectangles with a moved point (a split vertex or a midpoint) on their boundary: a
+    # fan could turn a triangle over there, a spine cannot (_voxel_spine.py).
+    ext = p.hi - p.lo
+    spine = ext.max(axis=1) > SPINE_RATIO * ext.min(axis=1)
+    long_ = np.flatnonzero(spine)
+    if len(long_):
+        vertex_moved = np.concatenate([split[:, 0], np.ones(len(used), bool)])
+        moved = vertex_moved[vid[_ranges(p.start[long_], p.size[long_])]].astype(np.int64)
+        spine[long_] = np.add.reduceat(moved, np.cumsum(p.size[long_]) - p.size[long_]) > 0
+    spine_polys = np.flatnonzero(spine)
+    pts = _ranges(p.start[spine_polys], p.size[spine_polys])
     # Polygon centres (fans from the centre).
-    use_centre = p.fan < 0
+    use_centre = (p.fan < 0) & ~spine
     centre_vid = np.full(n_poly, -1, np.int64)
     centre_vid[use_centre] = n_lattice + len(used) + np.arange(int(use_centre.sum()))
-    vertices = np.concatenate([lattice_xyz, diag.xyz[used], p.centre[use_centre]])
-    # Triangles: fans from a corner (n - 2) or from the centre (n).
-    tri_count = p.triangle_count
+    spines = spine_triangles(
+        spine_polys, p.size, _in_plane2(p, pts, spine_polys, diag), vid[pts], p.lo, p.hi,
+        np.array([s for _, s in _DIRS])[p.direction] < 0,
+        n_lattice + len(used) + int(use_centre.sum()),
+    )  # fmt: skip
+    sp_axes = _AXES[p.direction[spines.poly_of_point]]
+    spine_xyz = np.empty((len(spines.uv), 3))
+    rows = np.arange(len(spines.uv))
+    spine_xyz[rows, sp_axes[:, 0]] = p.layer[spines.poly_of_point]
+    spine_xyz[rows, sp_axes[:, 1]] = spines.uv[:, 0]
+    spine_xyz[rows, sp_axes[:, 2]] = spines.uv[:, 1]
+    vertices = np.concatenate([lattice_xyz, diag.xyz[used], p.centre[use_centre], spine_xyz])
+    # Triangles: fans from a corner (n - 2) or from the centre (n); then the spines'.
+    tri_count = np.where(spine, 0, p.triangle_count)
     poly_of_tri = np.repeat(np.arange(n_poly), tri_count)
     j = np.arange(int(tri_count.sum())) - np.repeat(np.cumsum(tri_count) - tri_count, tri_count)
     size, start, fan = p.size[poly_of_tri], p.start[poly_of_tri], p.fan[poly_of_tri]
@@ -589,4 +643,5 @@ def _triangles(
     b_local = np.where(corner_fan, (fan + 1 + j) % size, j % size)
     c_local = np.where(corner_fan, (fan + 2 + j) % size, (j + 1) % size)
     tris = np.column_stack([a, vid[start + b_local], vid[start + c_local]]).astype(np.int64)
-    return vertices, tris, p.label[poly_of_tri]
+    tris = np.concatenate([tris, spines.triangles])
+    return vertices, tris, p.label[np.concatenate([poly_of_tri, spines.poly_of_triangle])]
