@@ -167,10 +167,13 @@ def test_voxels_refused_where_there_are_none(
 ) -> None:
     out = tmp_path / "w"
     yaml_path = FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"
-    _refused(capsys, ["map2world", str(yaml_path), "-o", str(out), "--geometry", "voxels"], out,
-             "no third dimension")  # fmt: skip
+    with pytest.raises(SystemExit):  # not offered: a usage error naming the choices
+        main(["map2world", str(yaml_path), "-o", str(out), "--geometry", "voxels"])
+    assert "invalid choice: 'voxels'" in capsys.readouterr().err and not out.exists()
     cfg = tmp_path / "c.yaml"
     cfg.write_text("world:\n  geometry: voxels\n")
+    _refused(capsys, ["map2world", str(yaml_path), "-o", str(out), "--config", str(cfg)], out,
+             "no third dimension")  # fmt: skip
     image = FIXTURES / "images/heightmap_png_bowl/heightmap_bowl.png"
     _refused(capsys, ["image2world", str(image), "-o", str(out), "--config", str(cfg)], out,
              "no third dimension")  # fmt: skip

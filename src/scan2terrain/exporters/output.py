@@ -184,7 +184,7 @@ def refuse_foreign(target: Path, real: Path) -> None:
     """Refuse to replace ``real`` unless it is empty or holds :data:`MARKER` (a folder this
     tool wrote), naming a few of the entries that would be lost."""
     try:
-        names = sorted(os.listdir(real))
+        names = sorted(p.name for p in real.iterdir())
     except OSError as exc:
         raise OutputError(f"{target}: cannot read the folder ({exc.strerror or exc})") from exc
     if not names or (real / MARKER).is_file():
