@@ -99,7 +99,7 @@ def check_file_target(path: Path, overwrite: bool, inputs: Iterable[Path | str] 
     return real
 
 
-def atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: Path, data: bytes | bytearray) -> None:
     """Write ``data`` to a temporary file beside ``path`` (mode 0644), then rename it into place.
 
     A symbolic link is written through (its target is replaced, the link stays). On any

@@ -13,7 +13,10 @@ Frame and unit conventions (see DESIGN.md):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -225,3 +228,128 @@ class ScanCounts:
     unposed: int = 0
     empty: int = 0
     first_unposed: str = ""
+
+
+# --- point clouds ------------------------------------------------------------------------------
+
+#: Per-point attributes known by name: LAS's dimensions (laspy's names, the vocabulary every
+#: cloud reader maps its fields to: PDAL's ``Intensity``, CloudCompare's ``scalar_intensity`` and
+#: PCL's ``intensity`` are all ``intensity``) and the integer type each has in LAS; a text
+#: column of such a name is narrowed to that type when no value changes. Colours (``red``,
+#: ``green``, ``blue``) are 8-bit (uint8) or 16-bit (uint16) as the file stores them.
+POINT_ATTRIBUTES: dict[str, str] = {
+    "intensity": "u2",
+    "return_number": "u1",
+    "number_of_returns": "u1",
+    "scan_direction_flag": "u1",
+    "edge_of_flight_line": "u1",
+    "classification": "u1",
+    "synthetic": "u1",
+    "key_point": "u1",
+    "withheld": "u1",
+    "overlap": "u1",
+    "scanner_channel": "u1",
+    "scan_angle_rank": "i1",
+    "scan_angle": "i2",
+    "user_data": "u1",
+    "point_source_id": "u2",
+    "gps_time": "f8",
+    "red": "u2",
+    "green": "u2",
+    "blue": "u2",
+    "nir": "u2",
+}
+COLOUR_ATTRIBUTES = ("red", "green", "blue")
+
+
+@dataclass(frozen=True)
+class LasVlr:
+    """One variable-length record of a LAS file, as stored (``extended``: an EVLR)."""
+
+    user_id: str
+    record_id: int
+    description: str
+    data: bytes
+    extended: bool = False
+
+    @property
+    def is_crs(self) -> bool:
+        """A coordinate reference system record (GeoTIFF keys, OGC WKT; liblas' WKT copy)."""
+        return self.user_id == "LASF_Projection" or (
+            self.user_id == "liblas" and self.record_id == 2112
+        )
+
+
+@dataclass(frozen=True)
+class LasLayout:
+    """How a LAS/LAZ file stored its points, so that they can be written the same way.
+
+    ``vlrs`` are the file's records (the CRS among them) but for those a writer makes itself
+    (LASzip's and the extra-bytes description); ``creation`` is (day of year, year), (0, 0) when
+    the file gives none; ``scales`` and ``offsets`` are per axis: ``x = X * scale + offset``.
+    """
+
+    version: str
+    point_format: int
+    scales: tuple[float, float, float]
+    offsets: tuple[float, float, float]
+    vlrs: tuple[LasVlr, ...] = ()
+    global_encoding: int = 0
+    system_identifier: str = ""
+    file_source_id: int = 0
+    creation: tuple[int, int] = (0, 0)
+
+    @property
+    def crs(self) -> tuple[LasVlr, ...]:
+        return tuple(v for v in self.vlrs if v.is_crs)
+
+
+@dataclass(frozen=True)
+class Cloud:
+    """The points of a point-cloud file, and what else it says of them.
+
+    Attributes
+    ----------
+    points : float64 array, shape (N, 3), N >= 1
+        x, y, z as stored (metres for ROS/PCL data; LAS in its CRS units), in the file's own
+        frame, finite only.
+    path : Path
+        The file read.
+    format : str
+        What was read, e.g. ``"pcd binary_compressed"``, ``"ply binary_little_endian"``,
+        ``"laz 1.2 point format 3"``, ``"csv"``.
+    records : int
+        Points in the file (of the requested LAS classes) before non-finite ones were dropped.
+    colours : uint8 array, shape (N, 3), or None
+        Red, green, blue (0..255) of each point, row for row with ``points``; None unless
+        colours were asked for and the file has them.
+    attributes : name -> array, shape (N,)
+        Every other per-point field of the file (when asked for), by :data:`POINT_ATTRIBUTES`
+        name where one fits, else the file's own, in the file's order and number type; colour
+        as ``red``, ``green``, ``blue`` of 8 or 16 bits.
+    las : LasLayout or None
+        A LAS/LAZ file's point format, scales, offsets and records (its CRS), when attributes
+        were asked for.
+    unread : tuple of str
+        Fields the file has that no attribute carries (a PCD field of COUNT > 1, a PLY list,
+        a text column that is not numbers), as ``"name (why)"``.
+    """
+
+    points: NDArray[np.float64]
+    path: Path
+    format: str
+    records: int
+    colours: NDArray[np.uint8] | None = None
+    attributes: Mapping[str, NDArray[Any]] = field(default_factory=dict)
+    las: LasLayout | None = None
+    unread: tuple[str, ...] = ()
+
+    def take(self, keep: NDArray[np.bool_]) -> Cloud:
+        """The cloud of the points where ``keep`` (bool (N,)) is True, their colours and
+        attributes with them."""
+        return replace(
+            self,
+            points=np.ascontiguousarray(self.points[keep]),
+            colours=None if self.colours is None else np.ascontiguousarray(self.colours[keep]),
+            attributes={k: np.ascontiguousarray(v[keep]) for k, v in self.attributes.items()},
+        )

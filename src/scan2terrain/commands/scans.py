@@ -26,7 +26,7 @@ from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.steps import ScanProgress, grid_options, new_tree, octree_file, refuse_existing
-from scan2terrain.types import OccupancyGrid, Pose2D, Scan, Start, Transform
+from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result
 
 if TYPE_CHECKING:
@@ -317,13 +317,29 @@ def read_clouds(
 ) -> Clouds:
     """Points of every file (float64), the local origin subtracted from them (``local`` and
     ``scans.local_origin: auto``), and notes; with ``colours`` their RGB where a file has it."""
+    clouds, notes = _cloud_files(files, cfg, colours=colours)
+    points = [c.points for c in clouds]
+    origin = np.zeros(3)
+    if local:
+        lo = np.min([p.min(axis=0) for p in points], axis=0)
+        hi = np.max([p.max(axis=0) for p in points], axis=0)
+        origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
+    return Clouds([p - origin for p in points], origin, notes, [c.colours for c in clouds])
+
+
+def _cloud_files(
+    files: Sequence[Path], cfg: Config, *, colours: bool = False, attributes: bool = False
+) -> tuple[list[Cloud], list[str]]:
+    """Every file's cloud (of ``scans.las_classes``, without statistical outliers when
+    ``scans.outliers`` asks), and notes."""
     from scan2terrain.readers.cloudfile import read_cloud
 
     sc = cfg.scans
-    clouds = [read_cloud(f, las_classes=sc.las_classes, colours=colours) for f in files]
+    clouds = [
+        read_cloud(f, las_classes=sc.las_classes, colours=colours, attributes=attributes)
+        for f in files
+    ]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
-    points = [c.points for c in clouds]
-    rgb = [c.colours for c in clouds]
     if sc.outliers is not None:
         from scan2terrain.filters.outliers import statistical_outliers
 
@@ -331,21 +347,14 @@ def read_clouds(
             keep = statistical_outliers(
                 c.points, neighbours=sc.outlier_neighbours, std_ratio=sc.outliers
             )
-            points[i] = c.points[keep]
-            colour = rgb[i]
-            rgb[i] = None if colour is None else colour[keep]
+            clouds[i] = c.take(keep)
             notes.append(
                 f"{c.path.name}: {int((~keep).sum()):,} statistical outliers removed (mean"
                 f" distance to {sc.outlier_neighbours} neighbours over mean + {sc.outliers:g} sd)"
             )
             if not keep.any():  # pragma: no cover - the filter keeps points at the mean
                 raise InputError(c.path, "every point is a statistical outlier")
-    origin = np.zeros(3)
-    if local:
-        lo = np.min([p.min(axis=0) for p in points], axis=0)
-        hi = np.max([p.max(axis=0) for p in points], axis=0)
-        origin = local_origin(lo, hi, sc.local_origin, notes)
-    return Clouds([p - origin for p in points], origin, notes, rgb)
+    return clouds, notes
 
 
 def cloud2world(
@@ -459,12 +468,16 @@ def _fixed_pose(cfg: Config) -> Transform:
 
 
 def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: bool = False) -> str:
-    """A cloud file, or a bag's scans (hits only, in the fixed frame), to one cloud file."""
+    """A cloud file, or a bag's scans (hits only, in the fixed frame), to one cloud file.
+
+    Cloud files keep what the target can hold of their attributes (intensity, classification,
+    return numbers, GPS time, colour, ...), LAS layout (point format, scales, offsets) and CRS;
+    one line of the report says what it cannot hold."""
     from scan2terrain.errors import OutputError
-    from scan2terrain.exporters.pointcloud import FORMATS, write_points
-    from scan2terrain.fileio import check_file_target
+    from scan2terrain.exporters.pointcloud import FORMATS, cloud_bytes
+    from scan2terrain.fileio import atomic_write, check_file_target
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.cloudfile import SUFFIXES
+    from scan2terrain.readers.cloudfile import SUFFIXES, merge_clouds
 
     target = Path(target)
     # Before any work: a target this cannot write, or must not replace, is refused.
@@ -477,8 +490,12 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
         )
         raise OutputError(f"{target}: {problem} (use one of {', '.join(FORMATS)})")
     if all(Path(s).suffix.lower() in SUFFIXES for s in source):
-        clouds, _, notes, _ = read_clouds(source, cfg, local=False)  # coordinates as they were
-        points = np.concatenate(clouds)
+        clouds, notes = _cloud_files(source, cfg, attributes=True)
+        cloud, more = merge_clouds(clouds)
+        del clouds  # one file's cloud is the merged one; several were copied into it
+        notes += more
+        if cloud.unread:
+            notes.append(f"not read: {', '.join(cloud.unread)}")
     else:
         if cfg.scans.outliers is not None:
             raise ConfigError(
@@ -487,8 +504,16 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
             )
         with open_bag(list(source)) as bag:
             points, notes = _bag_hits(bag, cfg)
-    write_points(target, points)
-    return "\n".join([f"Wrote {target} ({len(points):,} points)", *(f"  {n}" for n in notes)])
+            cloud = Cloud(points, bag.path, "bag", len(points))
+    try:
+        out = cloud_bytes(cloud, target.suffix)
+    except ValueError as exc:  # coordinates LAS cannot hold
+        raise InputError(cloud.path, str(exc)) from exc
+    atomic_write(target, out.data)
+    lines = [f"Wrote {target} ({len(cloud.points):,} points)", *(f"  {n}" for n in notes)]
+    if out.lost:
+        lines.append(f"  {target.suffix[1:].upper()} cannot hold: {'; '.join(out.lost)}")
+    return "\n".join(lines)
 
 
 def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:

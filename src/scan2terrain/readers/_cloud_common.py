@@ -1,6 +1,7 @@
-"""What the PCD, PLY and XYZ-style readers share: numpy's text parser, byte-size checks, the rule
-that turns a file's colour values into 8-bit RGB (:func:`rgb8`), and Open3D for the data numpy
-cannot decode without a loop.
+"""What the cloud readers share: what a reader returns (:class:`Decoded`), the names and types of
+point attributes (:func:`attribute_name`, :func:`narrowed`, :func:`colour_values`), numpy's text
+parser, byte-size checks, the rule that turns a file's colour values into 8-bit RGB
+(:func:`rgb8`), and Open3D for the data numpy cannot decode without a loop.
 
 Open3D is not used for everything because on bad input it prints to the console and returns no
 points, or (short ASCII PCD/PLY data, truncated binary PLY; Open3D 0.20) returns uninitialised
@@ -18,15 +19,102 @@ import tempfile
 import threading
 import warnings
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.types import POINT_ATTRIBUTES, LasLayout
 
 XYZ = ("x", "y", "z")
 _FD2_LOCK = threading.Lock()
+#: Known attribute names without their underscores -> the name (``gpstime`` -> ``gps_time``).
+_KNOWN = {k.replace("_", ""): k for k in POINT_ATTRIBUTES} | {"infrared": "nir"}
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """What a cloud reader decoded: x, y, z of every record (non-finite ones kept), the
+    colours as 8-bit RGB (if asked for and present), what was read (``"pcd binary"``), and when
+    asked for every other field as :attr:`~scan2terrain.types.Cloud.attributes`,
+    :attr:`~scan2terrain.types.Cloud.las` and :attr:`~scan2terrain.types.Cloud.unread` hold
+    them."""
+
+    points: NDArray[np.float64]
+    colours: NDArray[np.uint8] | None
+    format: str
+    attributes: dict[str, NDArray[Any]] = field(default_factory=dict)
+    las: LasLayout | None = None
+    unread: tuple[str, ...] = ()
+
+
+def attribute_name(name: str) -> str:
+    """The :data:`~scan2terrain.types.POINT_ATTRIBUTES` name a file's field name stands for,
+    in any case, with or without underscores, CloudCompare's ``scalar_`` prefix or spaces
+    (``Intensity``, ``GpsTime``, ``scalar_Classification``, ``Infrared``); other names are
+    kept as they are."""
+    key = name.strip().lower()
+    key = key.removeprefix("scalar_").replace("_", "").replace(" ", "")
+    return _KNOWN.get(key, name.strip())
+
+
+def attribute_names(names: list[str]) -> list[str | None]:
+    """:func:`attribute_name` of each field; where two fields would get one name the later keeps
+    its own, and None where that too is taken (a field of one name twice)."""
+    out: list[str | None] = []
+    for name in names:
+        known = attribute_name(name)
+        if known in out:
+            known = name.strip()
+        out.append(None if known in out or known in XYZ else known)
+    return out
+
+
+def narrowed(name: str, values: NDArray[Any]) -> NDArray[Any]:
+    """``values`` (a text column, float64) as the integer type its
+    :data:`~scan2terrain.types.POINT_ATTRIBUTES` name has, when every value is a whole number
+    of that type's range; otherwise as they are."""
+    code = POINT_ATTRIBUTES.get(name)
+    if code is None or np.dtype(code).kind == "f" or values.dtype.kind != "f":
+        return values
+    info = np.iinfo(np.dtype(code))
+    if not len(values) or not np.isfinite(values).all():
+        return values
+    whole = bool((values == np.round(values)).all())
+    if whole and values.min() >= info.min and values.max() <= info.max:
+        return values.astype(code)
+    return values
+
+
+def colour_values(values: NDArray[Any], *, fractions: bool = False) -> NDArray[Any] | None:
+    """A colour channel as an attribute: 8 bits (uint8) or 16 bits (uint16) as stored.
+
+    Integers of 8 or 16 bits are kept; other integers and whole floats within 0..255 become
+    uint8, within 0..65535 uint16; floats within 0..1 that are not all whole, or any floats
+    within 0..1 when ``fractions`` (the format says so), are fractions: ``round(v * 255)``.
+    None for values that are none of these (negative, NaN, larger)."""
+    arr = np.asarray(values)
+    if arr.dtype in (np.uint8, np.uint16):
+        return arr
+    if arr.size == 0:
+        return arr.astype(np.uint8)
+    if arr.dtype.kind == "f":
+        if not np.isfinite(arr).all():
+            return None
+        whole = bool((arr == np.round(arr)).all())
+        if arr.min() >= 0.0 and arr.max() <= 1.0 and (fractions or not whole):
+            return np.round(arr * 255.0).astype(np.uint8)
+        if not whole:
+            return None
+    elif arr.dtype.kind not in "iu":
+        return None
+    low, high = float(arr.min()), float(arr.max())
+    if low < 0 or high > 65535:
+        return None
+    return arr.astype(np.uint8 if high <= 255 else np.uint16)
 
 
 def open3d_points(
@@ -69,6 +157,32 @@ def open3d_points(
                 path, f"corrupt data: {expected} points, Open3D decoded {len(rgb)} colours"
             )
     return points, rgb
+
+
+def open3d_fields(path: Path, expected: int) -> dict[str, NDArray[Any]]:
+    """Every field of a point-cloud file as Open3D's tensor reader decodes it, in its own type:
+    ``positions`` (N, 3), ``colors`` (N, 3), ``normals`` (N, 3), any other by its name, (N,)
+    where it is one value a point; the file must hold ``expected`` points."""
+    import open3d
+
+    utility = open3d.utility
+    try:
+        with utility.VerbosityContextManager(utility.VerbosityLevel.Error):
+            cloud = open3d.t.io.read_point_cloud(path)
+    except RuntimeError as exc:  # Open3D raises its own errors as RuntimeError
+        raise InputError(path, f"corrupt data: Open3D cannot read it ({exc})") from exc
+    out: dict[str, NDArray[Any]] = {}
+    for name in cloud.point:
+        values = cloud.point[name].numpy()
+        if len(values) != expected:
+            raise InputError(
+                path, f"corrupt data: the header says {expected} points, Open3D decoded "
+                f"{len(values)} {name}",
+            )  # fmt: skip
+        out[name] = values[:, 0] if values.ndim == 2 and values.shape[1] == 1 else values
+    if "positions" not in out:
+        raise InputError(path, f"corrupt data: the header says {expected} points, Open3D decoded 0")
+    return out
 
 
 @contextlib.contextmanager

@@ -13,7 +13,9 @@ PCD and PLY are decoded with numpy where it can without a loop per point, and by
 otherwise (``_cloud_common.py``: what the numpy-based readers share).
 
 Points are returned as the file stores them (no ``VIEWPOINT`` or CRS applied, as PCL and Open3D
-do); every problem is an :class:`InputError` naming the file.
+do); every problem is an :class:`InputError` naming the file. On request (``attributes=True``,
+for ``convert``) every other per-point field comes too, named as LAS names it where it is one of
+LAS's, and a LAS file's point format, scales, offsets and records (its CRS).
 
 Colours are read only when asked for (``read_cloud(..., colours=True)``: they cost memory and
 time), as 8-bit RGB aligned with the points, from LAS point formats with colour (2, 3, 5, 7, 8,
@@ -24,7 +26,6 @@ columns are known; how each format's values become 8 bits is told in its reader.
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,40 +37,19 @@ from scan2terrain.readers.las import LAS_SUFFIXES, class_codes, read_las
 from scan2terrain.readers.pcd import read_pcd
 from scan2terrain.readers.ply import read_ply
 from scan2terrain.readers.xyz import TEXT_SUFFIXES, read_text
+from scan2terrain.types import Cloud
+
+__all__ = ["SUFFIXES", "Cloud", "merge_clouds", "read_cloud"]
 
 SUFFIXES = (".pcd", ".ply", *LAS_SUFFIXES, *TEXT_SUFFIXES)
 
 
-@dataclass(frozen=True)
-class Cloud:
-    """The points of a point-cloud file.
-
-    Attributes
-    ----------
-    points : float64 array, shape (N, 3), N >= 1
-        x, y, z as stored (metres for ROS/PCL data; LAS in its CRS units), in the file's own
-        frame, finite only.
-    path : Path
-        The file read.
-    format : str
-        What was read, e.g. ``"pcd binary_compressed"``, ``"ply binary_little_endian"``,
-        ``"laz 1.2 point format 3"``, ``"csv"``.
-    records : int
-        Points in the file (of the requested LAS classes) before non-finite ones were dropped.
-    colours : uint8 array, shape (N, 3), or None
-        Red, green, blue (0..255) of each point, row for row with ``points``; None unless
-        colours were asked for and the file has them.
-    """
-
-    points: NDArray[np.float64]
-    path: Path
-    format: str
-    records: int
-    colours: NDArray[np.uint8] | None = None
-
-
 def read_cloud(
-    path: Path | str, *, las_classes: Collection[int] | None = None, colours: bool = False
+    path: Path | str,
+    *,
+    las_classes: Collection[int] | None = None,
+    colours: bool = False,
+    attributes: bool = False,
 ) -> Cloud:
     """Read the points of a point-cloud file, chosen by its extension (case-insensitive).
 
@@ -89,6 +69,11 @@ def read_cloud(
         PCD: ``rgb``/``rgba`` unpacked as PCL packs them. Text: only known colour columns (a
         header naming red/green/blue or r/g/b; ``.xyzrgb`` columns 4-6, 0..1; a 7-column
         ``.pts``, columns 5-7).
+    attributes : bool, default False
+        Also read every other per-point field (:attr:`Cloud.attributes`: intensity,
+        classification, return numbers, GPS time, colour as stored, ...) and a LAS file's point
+        format, scales, offsets and records, its CRS among them (:attr:`Cloud.las`), for
+        ``convert``.
 
     Returns
     -------
@@ -114,21 +99,61 @@ def read_cloud(
         if size == 0:
             raise InputError(path, "empty file")
         if suffix == ".pcd":
-            raw, rgb, fmt = read_pcd(path, colours=colours)
+            got = read_pcd(path, colours=colours, attributes=attributes)
         elif suffix == ".ply":
-            raw, rgb, fmt = read_ply(path, colours=colours)
+            got = read_ply(path, colours=colours, attributes=attributes)
         elif suffix in LAS_SUFFIXES:
-            raw, rgb, fmt = read_las(path, classes, colours=colours)
+            got = read_las(path, classes, colours=colours, attributes=attributes)
         else:
-            raw, rgb, fmt = read_text(path, suffix, colours=colours)
+            got = read_text(path, suffix, colours=colours, attributes=attributes)
     except OSError as exc:
         raise InputError(path, f"cannot read the file ({exc.strerror or exc})") from exc
-    finite = np.isfinite(raw).all(axis=1)
-    everywhere = bool(finite.all())
-    points = raw if everywhere else raw[finite]
-    if len(points) == 0:
+    raw = got.points
+    finite: NDArray[np.bool_] = np.asarray(np.isfinite(raw).all(axis=1))
+    if not finite.any():
         detail = "no points" if len(raw) == 0 else f"all {len(raw)} points are NaN or infinite"
         raise InputError(path, f"no finite point in the cloud ({detail})")
-    if rgb is not None:
-        rgb = np.ascontiguousarray(rgb if everywhere else rgb[finite], dtype=np.uint8)
-    return Cloud(np.ascontiguousarray(points, dtype=np.float64), path, fmt, len(raw), rgb)
+    rgb = None if got.colours is None else np.ascontiguousarray(got.colours, dtype=np.uint8)
+    cloud = Cloud(
+        np.ascontiguousarray(raw, dtype=np.float64), path, got.format, len(raw), rgb,
+        got.attributes, got.las, got.unread,
+    )  # fmt: skip
+    return cloud if finite.all() else cloud.take(finite)
+
+
+def merge_clouds(clouds: list[Cloud]) -> tuple[Cloud, list[str]]:
+    """Several files' clouds as one, in order, and what of them could not be kept, in words.
+
+    The attributes every cloud has are kept (concatenated, in numpy's common type), the others
+    are not; a LAS layout (point format, scales, offsets, records: the CRS) is kept where every
+    cloud has the same records, as the first cloud's (a LAS writer checks that the points lie
+    on its scales). One cloud is returned as it is.
+    """
+    if len(clouds) == 1:
+        return clouds[0], []
+    notes = []
+    first = clouds[0]
+    names = [k for k in first.attributes if all(k in c.attributes for c in clouds)]
+    dropped = sorted({k for c in clouds for k in c.attributes} - set(names))
+    if dropped:
+        notes.append(f"not in every file, not kept: {', '.join(dropped)}")
+    layouts = [c.las for c in clouds]
+    las = first.las
+    if las is not None and not all(o is not None and o.vlrs == las.vlrs for o in layouts):
+        las = None
+    if las is None and any(o is not None and o.vlrs for o in layouts):
+        notes.append("the files' LAS records (the CRS) differ: none kept")
+    colours = None
+    if all(c.colours is not None for c in clouds):
+        colours = np.concatenate([c.colours for c in clouds if c.colours is not None])
+    merged = Cloud(
+        points=np.concatenate([c.points for c in clouds]),
+        path=first.path,
+        format=", ".join(dict.fromkeys(c.format for c in clouds)),
+        records=sum(c.records for c in clouds),
+        colours=colours,
+        attributes={k: np.concatenate([c.attributes[k] for c in clouds]) for k in names},
+        las=las,
+        unread=tuple(dict.fromkeys(u for c in clouds for u in c.unread)),
+    )
+    return merged, notes

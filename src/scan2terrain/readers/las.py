@@ -1,6 +1,6 @@
-"""LAS and LAZ files -> float64 points, whole (:func:`read_las`, with the points' colours on
-request) or streamed by point range (:func:`iter_las`), and their headers alone
-(:func:`las_info`); a path or a URL.
+"""LAS and LAZ files -> float64 points, whole (:func:`read_las`, with the points' colours and
+every other dimension, point format, scales, offsets and records on request) or streamed by
+point range (:func:`iter_las`), and their headers alone (:func:`las_info`); a path or a URL.
 
 laspy (LAZ through its lazrs backend), read chunk by chunk; coordinates are the scaled float64
 ``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32), computed by
@@ -23,8 +23,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._cloud_common import Decoded
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._las_layout import check_las_layout, is_panic, panic_error
+from scan2terrain.types import LasLayout, LasVlr
 
 LAS_SUFFIXES = (".las", ".laz")
 #: LAS points decoded per chunk (about 50 MB of LAS records at most).
@@ -46,8 +48,12 @@ def class_codes(path: Path | str, suffix: str, las_classes: Collection[int]) -> 
 
 
 def read_las(
-    path: Path, classes: NDArray[np.int64] | None, *, colours: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+    path: Path,
+    classes: NDArray[np.int64] | None,
+    *,
+    colours: bool = False,
+    attributes: bool = False,
+) -> Decoded:
     """All points of a local LAS/LAZ file (of ``classes`` only, when given), their colours and
     what was read (``"laz 1.2 point format 3"``); for
     :func:`~scan2terrain.readers.cloudfile.read_cloud`.
@@ -56,15 +62,20 @@ def read_las(
     (formats 2, 3, 5, 7, 8 and 10); None otherwise. LAS stores 16-bit colour, but many writers
     store 8-bit values unscaled: if every colour value of the file (all its points, whichever
     classes are kept) is <= 255 the values are used as they are, else their high byte is kept.
+
+    With ``attributes``, every dimension of the point format but X, Y, Z as stored (laspy's
+    names and types: bit fields as uint8, extra bytes scaled), and the file's
+    :class:`~scan2terrain.types.LasLayout` (point format, scales, offsets, records).
+    Arrays are allocated once for the header's point count and filled chunk by chunk.
     """
     import laspy  # type: ignore[import-untyped]
 
-    parts: list[NDArray[np.float64]] = []
-    rgb_parts: list[NDArray[np.uint16]] = []
     peak = 0  # the largest colour value of any point read
-    coloured = False
     present: set[int] = set()
-    seen = 0
+    seen = kept = 0
+    columns: dict[str, NDArray[Any]] = {}
+    unread: list[str] = []
+    layout = None
     with path.open("rb") as raw:
         check_las_layout(raw, path.stat().st_size, path, decode=(0, None))
     try:
@@ -73,22 +84,41 @@ def read_las(
             n = int(header.point_count)
             version = f"{header.version.major}.{header.version.minor}"
             fmt = f"{path.suffix.lower()[1:]} {version} point format {header.point_format.id}"
-            coloured = colours and "red" in header.point_format.dimension_names
+            dims = list(header.point_format.dimension_names)
+            coloured = (colours or attributes) and "red" in dims
+            names = [d for d in dims if d not in ("X", "Y", "Z")] if attributes else []
+            if coloured and not attributes:
+                names = ["red", "green", "blue"]
+            points = np.empty((n, 3), dtype=np.float64)
             for chunk in reader.chunk_iterator(LAS_CHUNK):
-                seen += len(chunk)
-                xyz = _xyz(chunk)
-                rgb = _rgb(chunk) if coloured else None
-                if rgb is not None and len(rgb):
-                    peak = max(peak, int(rgb.max()))
+                m = len(chunk)
+                if seen + m > n:  # pragma: no cover - laspy reads the header's count
+                    break
+                seen += m
+                keep = None
                 if classes is not None:
                     codes = np.asarray(chunk.classification)
                     present.update(np.unique(codes).tolist())
                     keep = np.isin(codes, classes)
-                    xyz = xyz[keep]
-                    rgb = None if rgb is None else rgb[keep]
-                parts.append(xyz)
-                if rgb is not None:
-                    rgb_parts.append(rgb)
+                    m = int(np.count_nonzero(keep))
+                if keep is None:
+                    _xyz(chunk, out=points[kept : kept + m])
+                else:
+                    points[kept : kept + m] = _xyz(chunk)[keep]
+                for name in names:
+                    values = np.asarray(chunk[name])
+                    if name in ("red", "green", "blue") and len(values):
+                        peak = max(peak, int(values.max()))
+                    if values.ndim != 1:
+                        if name not in unread:
+                            unread.append(name)
+                        continue
+                    if name not in columns:
+                        columns[name] = np.empty(n, dtype=values.dtype)
+                    columns[name][kept : kept + m] = values if keep is None else values[keep]
+                kept += m
+            if attributes:
+                layout = _layout(header)
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError) as exc:
         # lazrs raises LazrsError (a RuntimeError) for corrupt or truncated LAZ data.
         raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from exc
@@ -98,27 +128,54 @@ def read_las(
         raise panic_error(path, exc) from exc
     if seen != n:
         raise InputError(path, f"truncated LAS file: the header says {n} points, read {seen}")
-    points = np.concatenate(parts) if parts else np.zeros((0, 3))
-    if classes is not None and len(points) == 0 and seen > 0:
+    if classes is not None and kept == 0 and seen > 0:
         raise InputError(
             path,
             f"no point of class {', '.join(map(str, classes.tolist()))} "
             f"(classes present: {', '.join(map(str, sorted(present)))})",
         )
+    small = kept < n // 2  # copied out of the arrays sized for every point
+    points = points[:kept].copy() if small else points[:kept]
+    for name in list(columns):
+        if name in unread:
+            del columns[name]
+        else:
+            columns[name] = columns[name][:kept].copy() if small else columns[name][:kept]
     colour = None
-    if coloured:
-        rgb16 = np.concatenate(rgb_parts) if rgb_parts else np.zeros((0, 3), dtype=np.uint16)
+    if coloured and colours:
+        rgb16 = np.stack([columns[c] for c in ("red", "green", "blue")], axis=1)
         colour = (rgb16 if peak <= 255 else rgb16 >> 8).astype(np.uint8)
-    return points, colour, fmt
+    if not attributes:
+        columns = {}
+    unread_why = tuple(f"{u} (an array per point)" for u in unread)
+    return Decoded(points, colour, fmt, columns, layout, unread_why)
 
 
-def _rgb(points: Any) -> NDArray[np.uint16]:
-    """(n, 3) uint16 red, green, blue of a laspy point record with colour."""
-    arr = points.array
-    out = np.empty((len(arr), 3), dtype=np.uint16)
-    for channel, name in enumerate(("red", "green", "blue")):  # three column copies
-        out[:, channel] = arr[name]
-    return out
+#: Records laspy writes itself: LASzip's, and the description of the extra bytes.
+_WRITER_VLRS = {("laszip encoded", 22204), ("LASF_Spec", 4)}
+
+
+def _layout(header: Any) -> LasLayout:
+    """A laspy header's point format, scales, offsets and records."""
+    records = []
+    for extended, vlrs in ((False, header.vlrs), (True, header.evlrs or [])):
+        for v in vlrs:
+            if (v.user_id, v.record_id) in _WRITER_VLRS:
+                continue
+            data = v.record_data_bytes()
+            records.append(LasVlr(v.user_id, v.record_id, v.description, bytes(data), extended))
+    day = header.creation_date
+    return LasLayout(
+        version=f"{header.version.major}.{header.version.minor}",
+        point_format=int(header.point_format.id),
+        scales=tuple(float(v) for v in header.scales),  # type: ignore[arg-type]  # 3 axes
+        offsets=tuple(float(v) for v in header.offsets),  # type: ignore[arg-type]
+        vlrs=tuple(records),
+        global_encoding=int(header.global_encoding.value),
+        system_identifier=str(header.system_identifier),
+        file_source_id=int(header.file_source_id),
+        creation=(0, 0) if day is None else (day.timetuple().tm_yday, day.year),
+    )
 
 
 @dataclass(frozen=True)
@@ -275,12 +332,18 @@ def iter_las(
         )
 
 
-def _xyz(points: Any, origin: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+def _xyz(
+    points: Any,
+    origin: NDArray[np.float64] | None = None,
+    out: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
     """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, exactly as laspy scales
-    them (``X * scale + offset``), less ``origin`` (metres, default none)."""
+    them (``X * scale + offset``), less ``origin`` (metres, default none); into ``out`` (C-
+    contiguous (n, 3)) when given."""
     from scan2terrain.readers._las_kernels import scaled_xyz
 
-    out = np.empty((len(points), 3), dtype=np.float64)
+    if out is None:
+        out = np.empty((len(points), 3), dtype=np.float64)
     arr = points.array
     scaled_xyz(
         arr["X"],

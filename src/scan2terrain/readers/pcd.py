@@ -24,6 +24,7 @@ import io
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,9 +32,13 @@ from numpy.typing import NDArray
 from scan2terrain.errors import InputError
 from scan2terrain.readers._cloud_common import (
     XYZ,
+    Decoded,
+    attribute_name,
+    attribute_names,
     decode_text,
     loadtxt,
     need_bytes,
+    open3d_fields,
     open3d_points,
     stack,
 )
@@ -55,15 +60,17 @@ _PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "V
 RGB_FIELDS = ("rgb", "rgba")
 
 
-def read_pcd(
-    path: Path, *, colours: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> Decoded:
     """x, y, z of every point of a PCD file (non-finite ones kept), their colours and what was
     read (``"pcd binary"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`.
 
     Colours (uint8 (N, 3) RGB) only when ``colours`` is asked for and the file has an ``rgb`` or
     ``rgba`` field (see the module's docstring); None otherwise. An ``rgb`` field that is not
     one 4-byte value per point is refused (InputError) when colours are asked for.
+
+    With ``attributes``, every other field of COUNT 1 as its TYPE and SIZE say (``F 4`` float32,
+    ``U 2`` uint16, ...), named by :func:`~._cloud_common.attribute_name`; a packed colour as
+    ``red``, ``green``, ``blue`` (uint8; ``rgba`` also ``alpha``).
     """
     raw = path.read_bytes()
     head, start = _pcd_header(path, raw)
@@ -94,7 +101,17 @@ def read_pcd(
     offsets = np.concatenate([[0], np.cumsum(np.multiply(size_l, count_l))]).tolist()
     columns = np.concatenate([[0], np.cumsum(count_l)]).tolist()
     step = int(offsets[-1])
-    formats, at, cols = [], [], []
+    fields: list[str] = []
+    formats: list[str] = []
+    at: list[int] = []
+    cols: list[int] = []
+
+    def add(name: str, code: str, i: int) -> None:
+        fields.append(name)
+        formats.append("<" + code)
+        at.append(int(offsets[i]))
+        cols.append(int(columns[i]))
+
     for axis in XYZ:
         i = where[axis]
         assert i is not None  # checked above
@@ -104,59 +121,164 @@ def read_pcd(
                 path,
                 f"PCD field {axis}: unsupported TYPE {types[i]} SIZE {sizes[i]} COUNT {counts[i]}",
             )
-        formats.append("<" + code)
-        at.append(int(offsets[i]))
-        cols.append(int(columns[i]))
-    rgb = next((f for f in RGB_FIELDS if where[f] is not None), None) if colours else None
-    if rgb is not None:
-        i = where[rgb]
-        assert i is not None
-        if size_l[i] != 4 or count_l[i] != 1 or types[i].upper() not in ("F", "U", "I"):
+        add(axis, code, i)
+    rgb = next((f for f in RGB_FIELDS if where[f] is not None), None)
+    i_rgb = where[rgb] if rgb is not None else None
+    if i_rgb is not None and (
+        size_l[i_rgb] != 4 or count_l[i_rgb] != 1 or types[i_rgb].upper() not in ("F", "U", "I")
+    ):
+        if colours:
             raise InputError(
                 path,
-                f"PCD field {rgb}: TYPE {types[i]} SIZE {sizes[i]} COUNT {counts[i]} is not "
-                "PCL's packed colour (one 4-byte value)",
+                f"PCD field {rgb}: TYPE {types[i_rgb]} SIZE {sizes[i_rgb]} COUNT "
+                f"{counts[i_rgb]} is not PCL's packed colour (one 4-byte value)",
             )
-        at.append(int(offsets[i]))
-        cols.append(int(columns[i]))
-        formats.append("<u4")  # the float's bits, for TYPE F
-    fields = [*XYZ, rgb] if rgb is not None else list(XYZ)
+        rgb = i_rgb = None  # an attribute like any other
+    if rgb is not None and i_rgb is not None and (colours or attributes):
+        add(rgb, "u4", i_rgb)  # the float's bits, for TYPE F
+    else:
+        rgb = None
+    unread: list[str] = []
+    extra: dict[str, str] = {}  # attribute name -> its field in ``fields``
+    before = 0  # of them before the colour field
+    if attributes:
+        taken = {where[a] for a in XYZ} | {i_rgb}
+        others = [i for i, name in enumerate(names) if name != "_" and i not in taken]
+        for i, name in zip(others, attribute_names([names[i] for i in others]), strict=True):
+            code = _PCD_TYPES.get((types[i].upper(), size_l[i]))
+            if name is None or count_l[i] != 1 or code is None:
+                why = f"COUNT {counts[i]}" if count_l[i] != 1 else f"TYPE {types[i]} {sizes[i]}"
+                unread.append(f"{names[i]} ({'twice' if name is None else why})")
+                continue
+            extra[name] = f"_{len(fields)}"
+            add(extra[name], code, i)
+            before += i_rgb is not None and i < i_rgb
     kind = head["DATA"][0].lower() if head["DATA"] else ""
+    fmt = f"pcd {kind}"
     if kind == "ascii":
         text = decode_text(path, raw[start:])
         table = loadtxt(path, io.StringIO(text), cols, delimiter=None, skiprows=0)
         if len(table) != n:
             cut = "truncated: " if len(table) < n else ""
             raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(table)}")
-        if rgb is None:
-            return table, None, "pcd ascii"
-        return np.ascontiguousarray(table[:, :3]), _ascii_rgb(table[:, 3]), "pcd ascii"
+        packed = None if rgb is None else _ascii_packed(table[:, 3])
+        values = {}
+        with np.errstate(invalid="ignore", over="ignore"):
+            for name, key in extra.items():
+                k = fields.index(key)
+                values[name] = table[:, k].astype(formats[k][1:])
+        return _decoded(table[:, :3], packed, rgb, fmt, colours, values, unread, before)
     if kind == "binary":
         need_bytes(path, len(raw), start + n * step, f"{n} points of {step} bytes")
         dtype = np.dtype({"names": fields, "formats": formats, "offsets": at, "itemsize": step})
         rec = np.frombuffer(raw, dtype=dtype, count=n, offset=start)
-        colour = None if rgb is None else unpack_rgb(rec[rgb])
-        return stack(rec), colour, "pcd binary"
+        packed = None if rgb is None else rec[rgb]
+        values = {k: rec[f].astype(rec[f].dtype.newbyteorder("=")) for k, f in extra.items()}
+        return _decoded(stack(rec), packed, rgb, fmt, colours, values, unread, before)
     if kind == "binary_compressed":
         need_bytes(path, len(raw), start + 8, "the compressed block's sizes")
-        packed, unpacked = (int(v) for v in np.frombuffer(raw, dtype="<u4", count=2, offset=start))
+        packed_size, unpacked = (
+            int(v) for v in np.frombuffer(raw, dtype="<u4", count=2, offset=start)
+        )
         if unpacked != n * step:
             raise InputError(
                 path,
                 f"PCD compressed block unpacks to {unpacked} bytes, {n} points need {n * step}",
             )
-        need_bytes(path, len(raw), start + 8 + packed, f"a compressed block of {packed} bytes")
-        used = [a for a in (*XYZ, rgb) if a is not None]
-        with _lower_case_fields(path, raw, start, names, {a: where[a] for a in used}) as source:
+        need_bytes(
+            path, len(raw), start + 8 + packed_size, f"a compressed block of {packed_size} bytes"
+        )
+        used = {a: where[a] for a in (*XYZ, rgb) if a is not None}
+        with _lower_case_fields(path, raw, start, names, used) as source:
             try:
-                pts, values = open3d_points(source, n, colours=rgb is not None)
+                if attributes:
+                    return _open3d_decoded(path, source, n, colours, names, extra, unread, before)
+                pts, got = open3d_points(source, n, colours=colours and rgb is not None)
             except InputError as exc:
                 raise InputError(path, exc.problem) from exc
         colour = None  # Open3D unpacks the field into bytes / 255
-        if values is not None:
-            colour = np.clip(np.rint(values), 0, 255).astype(np.uint8)
-        return pts, colour, "pcd binary_compressed"
+        if got is not None:
+            colour = np.clip(np.rint(got), 0, 255).astype(np.uint8)
+        return Decoded(pts, colour, fmt)
     raise InputError(path, f"PCD header: unknown DATA {' '.join(head['DATA'])!r}")
+
+
+def _decoded(  # noqa: PLR0917 - one private call site per DATA kind
+    points: NDArray[np.float64],
+    packed: NDArray[Any] | None,
+    rgb: str | None,
+    fmt: str,
+    colours: bool,
+    values: dict[str, NDArray[Any]],
+    unread: list[str],
+    before: int,
+) -> Decoded:
+    """A :class:`Decoded` of the points, the packed colour (the colours, and with the other
+    attributes as ``red``, ``green``, ``blue``, and ``alpha`` of an ``rgba``, after the first
+    ``before`` of ``values``: in the file's order)."""
+    attributes: dict[str, NDArray[Any]] = {}
+    colour = None
+    if packed is not None:
+        colour = unpack_rgb(packed)
+        for channel, name in enumerate(("red", "green", "blue")):
+            attributes[name] = np.ascontiguousarray(colour[:, channel])
+        if rgb == "rgba":
+            attributes["alpha"] = (np.asarray(packed, dtype=np.uint32) >> 24).astype(np.uint8)
+    return Decoded(
+        np.ascontiguousarray(points), colour if colours else None, fmt,
+        _in_order(values, attributes, before), None, tuple(unread),
+    )  # fmt: skip
+
+
+def _in_order(
+    values: dict[str, NDArray[Any]], colour: dict[str, NDArray[Any]], before: int
+) -> dict[str, NDArray[Any]]:
+    """The attributes in the file's order: the first ``before`` values, the colour, the rest."""
+    items = list(values.items())
+    merged = dict(items[:before])
+    merged.update(colour)
+    for name, v in items[before:]:
+        merged.setdefault(name, v)
+    return merged
+
+
+def _open3d_decoded(  # noqa: PLR0917 - one private call site
+    path: Path,
+    source: Path,
+    n: int,
+    colours: bool,
+    names: list[str],
+    extra: dict[str, str],
+    unread: list[str],
+    before: int,
+) -> Decoded:
+    """A ``binary_compressed`` PCD's points and fields, decoded by Open3D's tensor reader (it
+    keeps every field and its type; its colours are the packed ones, unpacked)."""
+    found = open3d_fields(source, n)
+    points = np.asarray(found.pop("positions"), dtype=np.float64)
+    rgb = found.pop("colors", None)
+    channels: dict[str, NDArray[Any]] = {}
+    colour = None
+    if rgb is not None:
+        colour = np.asarray(rgb).astype(np.uint8) if rgb.dtype == np.uint8 else None
+        if colour is not None:
+            for channel, name in enumerate(("red", "green", "blue")):
+                channels[name] = np.ascontiguousarray(colour[:, channel])
+    attributes: dict[str, NDArray[Any]] = {}
+    normals = found.pop("normals", None)
+    lowered = {attribute_name(k): v for k, v in found.items()}
+    if normals is not None:
+        for axis, name in enumerate(("normal_x", "normal_y", "normal_z")):
+            lowered[name] = np.ascontiguousarray(normals[:, axis])
+    for name in extra:
+        field_name = next((f for f in names if attribute_name(f) == name), name)
+        value = lowered.get(name, found.get(field_name))
+        if value is None or value.ndim != 1:
+            unread.append(f"{field_name} (not decoded by Open3D)")
+            continue
+        attributes[name] = value
+    return Decoded(points, colour if colours else None, "pcd binary_compressed",
+                   _in_order(attributes, channels, before), None, tuple(unread))  # fmt: skip
 
 
 @contextlib.contextmanager
@@ -204,15 +326,15 @@ def unpack_rgb(packed: NDArray[np.uint32]) -> NDArray[np.uint8]:
     return out
 
 
-def _ascii_rgb(values: NDArray[np.float64]) -> NDArray[np.uint8]:
+def _ascii_packed(values: NDArray[np.float64]) -> NDArray[np.uint32]:
     """Packed colours written as text: integers (PCL) or floats whose bits they are (older
     writers); see the module's docstring."""
     whole = np.isfinite(values) & (values == np.floor(values))
     if whole.all() and (values >= 0).all() and (values < 2.0**32).all():
-        return unpack_rgb(values.astype(np.uint32))
+        return values.astype(np.uint32)
     with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf/huge: their float32 bits
-        bits = values.astype(np.float32).view(np.uint32)
-    return unpack_rgb(bits)
+        bits: NDArray[np.uint32] = values.astype(np.float32).view(np.uint32)
+    return bits
 
 
 def _pcd_header(path: Path, raw: bytes) -> tuple[dict[str, list[str]], int]:

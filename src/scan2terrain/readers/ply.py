@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +20,9 @@ from numpy.typing import NDArray
 from scan2terrain.errors import InputError
 from scan2terrain.readers._cloud_common import (
     XYZ,
+    Decoded,
+    attribute_names,
+    colour_values,
     decode_text,
     loadtxt,
     need_bytes,
@@ -67,9 +71,7 @@ class _Element:
         return _row_size(self) + sum(np.dtype(code).itemsize for code in self.lists)
 
 
-def read_ply(
-    path: Path, *, colours: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+def read_ply(path: Path, *, colours: bool = False, attributes: bool = False) -> Decoded:
     """x, y, z of every vertex of a PLY file (non-finite ones kept), their colours and what was
     read (``"ply ascii"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`.
 
@@ -77,6 +79,10 @@ def read_ply(
     ``red``, ``green`` and ``blue`` properties; None otherwise) are scaled by
     :func:`~scan2terrain.readers._cloud_common.rgb8`: ``uchar`` as stored, ``ushort`` too if
     every value is <= 255 and else their high byte, ``float``/``double`` 0..1 times 255.
+
+    With ``attributes``, every other numeric vertex property in its own type, named by
+    :func:`~._cloud_common.attribute_name` (CloudCompare's ``scalar_intensity`` is
+    ``intensity``); colour by :func:`~._cloud_common.colour_values`.
     """
     raw = path.read_bytes()
     fmt, elements, start = _ply_header(path, raw)
@@ -84,18 +90,27 @@ def read_ply(
     vertex, before = elements[index], elements[:index]
     names = [p for p, _ in vertex.props]
     codes = dict(vertex.props)
-    rgb = RGB if colours and all(codes.get(c) is not None for c in RGB) else ()
+    has_rgb = all(codes.get(c) is not None for c in RGB)
+    rgb = RGB if (colours or attributes) and has_rgb else ()
     floats = any(np.dtype(str(codes[c])).kind == "f" for c in rgb)
+    others = [n for n in names if n not in (*XYZ, *rgb)] if attributes else []
+    unread = [f"{n} (a list)" for n in others if codes[n] is None]
+    others = [n for n in others if codes[n] is not None]
     if not vertex.fixed or not all(e.fixed for e in before):
         # Rows of varying length: Open3D (RPly) walks them.
         _check_ply_rows(path, fmt, raw, start, [*before, vertex])
         pts, values = open3d_points(path, vertex.count, colours=bool(rgb))
-        colour = None
+        rgb_o3d = None
         if values is not None:  # Open3D's value / 255 * 255: integers only to a rounding
-            colour = rgb8(values if floats else np.rint(values), fractions=floats)
-        return pts, colour, f"ply {fmt}"
+            rgb_o3d = rgb8(values if floats else np.rint(values), fractions=floats)
+        unread += [f"{n} (not decoded by Open3D)" for n in others]
+        kept = {}
+        if rgb_o3d is not None and attributes:
+            kept = {c: np.ascontiguousarray(rgb_o3d[:, i]) for i, c in enumerate(RGB)}
+        return Decoded(pts, rgb_o3d if colours else None, f"ply {fmt}", kept, None, tuple(unread))
+    wanted = [*XYZ, *rgb, *others]
     if fmt == "ascii":
-        cols = [names.index(a) for a in (*XYZ, *rgb)]
+        cols = [names.index(a) for a in wanted]
         skip = sum(e.count for e in before)  # one line per item of each earlier element
         lines = raw.count(b"\n", start) + (not raw.endswith(b"\n"))
         if lines < skip + vertex.count:  # before numpy sizes its table by the header's count
@@ -120,30 +135,54 @@ def read_ply(
                 path,
                 f"truncated: PLY header says {vertex.count} vertices, the data has {len(table)}",
             )
-        if not rgb:
-            return table, None, "ply ascii"
-        return np.ascontiguousarray(table[:, :3]), rgb8(table[:, 3:], fractions=floats), "ply ascii"
-    order = "<" if fmt == "binary_little_endian" else ">"
-    offset = start + sum(e.count * _row_size(e) for e in before)
-    step = _row_size(vertex)
-    sizes = np.cumsum([0] + [np.dtype(code).itemsize for _, code in vertex.props]).tolist()
-    fields = [*XYZ, *rgb]
-    dtype = np.dtype(
-        {
-            "names": fields,
-            "formats": [order + str(vertex.props[names.index(a)][1]) for a in fields],
-            "offsets": [int(sizes[names.index(a)]) for a in fields],
-            "itemsize": step,
-        }
-    )
-    need_bytes(
-        path, len(raw), offset + vertex.count * step, f"{vertex.count} vertices of {step} bytes"
-    )
-    records = np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)
-    colour = None
+        with np.errstate(invalid="ignore", over="ignore"):
+            columns = {  # colours as parsed (float64), for rgb8 as before
+                a: table[:, k] if a in rgb else table[:, k].astype(str(codes[a]))
+                for k, a in enumerate(wanted)
+                if k >= 3
+            }
+    else:
+        order = "<" if fmt == "binary_little_endian" else ">"
+        offset = start + sum(e.count * _row_size(e) for e in before)
+        step = _row_size(vertex)
+        sizes = np.cumsum([0] + [np.dtype(code).itemsize for _, code in vertex.props]).tolist()
+        dtype = np.dtype(
+            {
+                "names": wanted,
+                "formats": [order + str(codes[a]) for a in wanted],
+                "offsets": [int(sizes[names.index(a)]) for a in wanted],
+                "itemsize": step,
+            }
+        )
+        need_bytes(
+            path, len(raw), offset + vertex.count * step, f"{vertex.count} vertices of {step} bytes"
+        )
+        records = np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)
+        table = stack(records)
+        columns = {a: records[a].astype(records[a].dtype.newbyteorder("=")) for a in wanted[3:]}
+    colour: NDArray[np.uint8] | None = None
+    attrs: dict[str, NDArray[Any]] = {}
     if rgb:
-        colour = rgb8(np.stack([records[c] for c in rgb], axis=1), fractions=floats)
-    return stack(records), colour, f"ply {fmt}"
+        stacked = np.stack([columns.pop(c) for c in rgb], axis=1)
+        colour = rgb8(stacked, fractions=floats)
+        depth = colour_values(stacked, fractions=floats) if attributes else None
+        if depth is not None:
+            attrs = {c: np.ascontiguousarray(depth[:, i]) for i, c in enumerate(RGB)}
+        elif attributes:
+            unread.append("red, green, blue (not colours of 8 or 16 bits)")
+    for name, key in zip(attribute_names(others), others, strict=True):
+        if name is None or name in attrs:
+            unread.append(f"{key} (twice)")
+        else:
+            attrs[name] = columns[key]
+    if rgb:  # in the file's order: the colour where its red is
+        at = sum(names.index(k) < names.index("red") for k in others)
+        items = list(attrs.items())
+        attrs = dict(items[3 : 3 + at] + items[:3] + items[3 + at :])
+    return Decoded(
+        np.ascontiguousarray(table[:, :3]), colour if colours else None, f"ply {fmt}", attrs,
+        None, tuple(unread),
+    )  # fmt: skip
 
 
 def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:

@@ -17,12 +17,21 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
-from scan2terrain.readers._cloud_common import XYZ, loadtxt, rgb8
+from scan2terrain.readers._cloud_common import (
+    XYZ,
+    Decoded,
+    attribute_names,
+    colour_values,
+    loadtxt,
+    narrowed,
+    rgb8,
+)
 
 TEXT_SUFFIXES = (".xyz", ".xyzn", ".xyzrgb", ".pts", ".txt", ".csv")
 #: Header names of the colour columns, either set.
@@ -32,21 +41,29 @@ _HEADER_NAME = re.compile(r"^[\s\"'/#]*(.*?)[\s\"']*$")
 
 
 def read_text(
-    path: Path, suffix: str, *, colours: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None, str]:
+    path: Path, suffix: str, *, colours: bool = False, attributes: bool = False
+) -> Decoded:
     """x, y, z of every row of a text point file (non-finite ones kept), their colours and its
     kind, the ``suffix`` without its dot; for
     :func:`~scan2terrain.readers.cloudfile.read_cloud`.
 
     Colours (uint8 (N, 3)) only when ``colours`` is asked for and the file has known colour
     columns (see the module's docstring), scaled by
-    :func:`~scan2terrain.readers._cloud_common.rgb8`; None otherwise."""
+    :func:`~scan2terrain.readers._cloud_common.rgb8`; None otherwise.
+
+    With ``attributes``, the colour columns by :func:`~._cloud_common.colour_values` and every
+    other column a header names whose first row is a number, by
+    :func:`~._cloud_common.attribute_name`, float64 or (a known name whose values all fit) its
+    integer type (:func:`~._cloud_common.narrowed`); columns without a name are not read."""
     kind = suffix[1:]
-    lines = _content_lines(path, 2)
+    lines = _content_lines(path, 3)
     if not lines:
         raise InputError(path, "no points (only blank or comment lines)")
     (number, line), expected = lines[0], None
     rgb: list[int] = []  # the colour columns
+    others: list[int] = []  # other named columns
+    names: list[str] = []
+    unread: list[str] = []
     delimiter = _delimiter(line)
     tokens = _split(line, delimiter)
     if kind == "pts" and len(tokens) == 1 and tokens[0].isdigit():
@@ -77,15 +94,49 @@ def read_text(
         known = next((c for c in RGB_NAMES if all(names.count(n) == 1 for n in c)), None)
         if known is not None:
             rgb = [names.index(n) for n in known]
-    if not colours:
+        if attributes:
+            first = _split(lines[1][1], delimiter) if len(lines) > 1 else []
+            for k in range(len(names)):
+                if k in cols or k in rgb:
+                    continue
+                if k < len(first) and _is_number(first[k]):
+                    others.append(k)
+                else:
+                    unread.append(f"{tokens[k].strip(chr(34) + chr(39))} (not numbers)")
+    if not (colours or attributes):
         rgb = []
-    table = loadtxt(path, path, cols + rgb, delimiter=delimiter, skiprows=skip)
+    try:
+        table = loadtxt(path, path, cols + rgb + others, delimiter=delimiter, skiprows=skip)
+    except InputError:
+        if not others:
+            raise
+        unread += [f"{names[k]} (not numbers in every row)" for k in others]
+        others = []
+        table = loadtxt(path, path, cols + rgb, delimiter=delimiter, skiprows=skip)
     if expected is not None and len(table) != expected:
         raise InputError(path, f"the .pts file says {expected} points, has {len(table)}")
-    if not rgb:
-        return table, None, kind
-    colour = rgb8(table[:, 3:], fractions=kind == "xyzrgb")
-    return np.ascontiguousarray(table[:, :3]), colour, kind
+    points = np.ascontiguousarray(table[:, :3])
+    colour = None
+    attrs: dict[str, NDArray[Any]] = {}
+    if rgb:
+        values = table[:, 3:6]
+        colour = rgb8(values, fractions=kind == "xyzrgb") if colours else None
+        depth = colour_values(values, fractions=kind == "xyzrgb") if attributes else None
+        if depth is not None:
+            attrs = {c: np.ascontiguousarray(depth[:, i]) for i, c in enumerate(RGB_NAMES[0])}
+        elif attributes:
+            unread.append("colour (not colours of 8 or 16 bits)")
+    found = attribute_names([names[k] for k in others])
+    for j, (k, name) in enumerate(zip(others, found, strict=True)):
+        if name is None or name in attrs:
+            unread.append(f"{names[k]} (twice)")
+        else:
+            attrs[name] = narrowed(name, np.ascontiguousarray(table[:, 3 + len(rgb) + j]))
+    if rgb and len(attrs) > 3:  # in the file's order: the colour where its red is
+        before = sum(k < rgb[0] for k, n in zip(others, found, strict=True) if n in attrs)
+        items = list(attrs.items())
+        attrs = dict(items[3 : 3 + before] + items[:3] + items[3 + before :])
+    return Decoded(points, colour, kind, attrs, None, tuple(unread))
 
 
 def _content_lines(path: Path, wanted: int) -> list[tuple[int, str]]:
