@@ -11,8 +11,9 @@ import yaml
 
 from scan2terrain.cli import main
 from tests.bagmaker import synthetic_room
-from tests.conftest import FIXTURES, IMAGES, MAPS
+from tests.conftest import FIXTURES, IMAGES, MAPS, write_map
 from tests.readers.test_dem import SFBAY
+from tests.spawn_check import spawn_ground
 
 HDL_PCD = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
 GEB079 = FIXTURES / "octomap/geb079.bt"
@@ -94,3 +95,143 @@ def test_bag_spawn_is_the_recorded_start_on_every_path(
         assert p[5] == pytest.approx(yaw0, abs=1e-3)
         docs.append((out / "spawn.yaml").read_bytes())
     assert docs[0] == docs[1]  # octree end points == streamed end points
+
+
+# --- issue 25 item 4: the spawn spot is free ground in the world written, or the report says
+# --- there is none and why. Checked on the world Gazebo builds (tests/spawn_check.py).
+
+
+def small_cloud(name: str, folder: Path) -> Path:
+    """Small clouds whose grid is nearly all obstacle: a 4 m lamppost (a pole 0.2 m across),
+    a bunny (a ball 0.6 m across on the ground), a 3 x 3 m field (flat ground, 1 cm of
+    noise: at 0.1 m an occupancy grid of it is one block)."""
+    rng = np.random.default_rng(11)
+    if name == "lamppost":
+        a, z = rng.uniform(0, 2 * np.pi, 2000), rng.uniform(0, 4, 2000)
+        pts = np.column_stack([0.1 * np.cos(a), 0.1 * np.sin(a), z])
+    elif name == "bunny":
+        v = rng.normal(size=(3000, 3))
+        pts = 0.3 * v / np.linalg.norm(v, axis=1)[:, None] + [0.0, 0.0, 0.3]
+    else:
+        xy = rng.uniform(-1.5, 1.5, (5000, 2))
+        pts = np.column_stack([xy, rng.normal(0, 0.01, 5000)])
+    path = folder / f"{name}.xyz"
+    np.savetxt(path, pts, fmt="%.4f")
+    return path
+
+
+SMALL = ("lamppost", "bunny", "field")
+
+
+@pytest.mark.parametrize("geometry", ["mesh", "boxes", "polylines", "voxels"])
+@pytest.mark.parametrize("cloud", SMALL)
+def test_small_clouds_spawn_on_the_ground_beside_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], cloud: str, geometry: str
+) -> None:
+    """Seen: the robot on the 2 m walls of a lamppost's, a bunny's or a field's grid ('no
+    level spot ... the flattest one') while the world's ground slab reaches 10 m beyond the
+    grid. The spot is on that slab, off the object, and the world Gazebo builds has nothing
+    in the square."""
+    out = tmp_path / "w"
+    src = small_cloud(cloud, tmp_path)
+    stdout = run(capsys, "cloud2world", src, "--resolution", "0.1", "--geometry", geometry,
+                 "--simulator", "gz", "-o", out)  # fmt: skip
+    why = str(spawn(out)["why"])
+    assert "beyond its edge, on the ground the world has around it" in why
+    assert "Spawn:" not in stdout  # no note: the spot is free ground
+    floor = None if geometry == "voxels" else 0.0  # voxels: the slab's top
+    for g in spawn_ground(out, tmp_path, floor=floor):
+        assert not g.problems, (g.simulator, g.problems, why)
+
+
+@pytest.mark.parametrize("cloud", SMALL)
+def test_small_clouds_as_heightmaps_say_there_is_no_ground(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], cloud: str
+) -> None:
+    """A heightmap is only its own padding wide (a sample or a few around the grid): a small
+    cloud's has no ground with room for the robot. The report says so and why, and so does
+    spawn.yaml; the world Gazebo builds agrees (the square is not on level floor)."""
+    out = tmp_path / "w"
+    src = small_cloud(cloud, tmp_path)
+    stdout = run(capsys, "cloud2world", src, "--resolution", "0.1", "--geometry", "heightmap",
+                 "--simulator", "gz", "-o", out)  # fmt: skip
+    why = str(spawn(out)["why"])
+    assert "no ground has room for a 1 x 1 m robot: " in why and "on an obstacle" in why
+    reason = "smaller than the 1.5 m square" if cloud != "field" else "every 1.5 m square"
+    assert reason in why
+    assert f"Spawn: {why} (spawn.yaml)" in " ".join(stdout.split())
+    (g,) = spawn_ground(out, tmp_path)
+    assert g.problems
+
+
+FULL = {
+    "tb3 mesh": (MAPS["tb3"], ["--geometry", "mesh"]),
+    "tb3 boxes": (MAPS["tb3"], ["--geometry", "boxes"]),
+    "tb3 polylines": (MAPS["tb3"], ["--geometry", "polylines"]),
+    "tb3 heightmap": (MAPS["tb3"], ["--geometry", "heightmap"]),
+    "tb3 heightmap upsampled": (MAPS["tb3"], ["--geometry", "heightmap", "--upsample", "3"]),
+    "levine heightmap thin walls": (MAPS["levine"], ["--geometry", "heightmap"]),
+    "warehouse heightmap unknown obstacle": (
+        MAPS["warehouse"],
+        ["--geometry", "heightmap", "--unknown", "obstacle"],
+    ),
+    "willow heightmap unknown height": (
+        MAPS["willow"],
+        ["--geometry", "heightmap", "--unknown", "height"],
+    ),
+    "willow mesh": (MAPS["willow"], ["--geometry", "mesh"]),
+}
+
+
+@pytest.mark.parametrize("case", list(FULL))
+def test_lab_maps_spawn_on_free_ground_in_the_world_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    """Full grids, every geometry: the spot is on the floor, nothing in the square, in both
+    simulators' worlds (Classic places the heightmap elsewhere: the same spot)."""
+    source, options = FULL[case]
+    out = tmp_path / "w"
+    stdout = run(capsys, "map2world", source, *options, "-o", out)
+    assert "Spawn:" not in stdout
+    grounds = spawn_ground(out, tmp_path)
+    assert {g.simulator for g in grounds} == {"gz", "classic"}
+    for g in grounds:
+        assert not g.problems, (g.simulator, g.problems, spawn(out)["why"])
+
+
+def test_octree_voxels_spawn_on_the_floor(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A building's voxels (FR-079): on its floor, under its ceiling, clear of its walls."""
+    out = tmp_path / "w"
+    run(capsys, "octree2world", GEB079, "--geometry", "voxels", "--simulator", "gz", "-o", out)
+    (g,) = spawn_ground(out, tmp_path, floor=None, band=0.3)
+    assert not g.problems, g.problems
+
+
+def test_heightmap_square_keeps_off_the_slope_up_to_a_wall(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """At 0.1 m the square ends half way between two samples: with a wall sample next, the
+    ground Gazebo builds rises to half the wall there (the spot was 1 m up the slope)."""
+    pixels = np.full((100, 100), 254, dtype=np.uint8)  # free
+    pixels[:, 58:] = 0  # a wall from x = 0.8 m (occupied)
+    yaml_path = write_map(tmp_path / "m", pixels, resolution=0.1, origin="[-5.0, -5.0, 0.0]")
+    out = tmp_path / "w"
+    run(capsys, "map2world", yaml_path, "--geometry", "heightmap", "-o", out)
+    for g in spawn_ground(out, tmp_path):
+        assert not g.problems and g.highest == 0.0, (g.simulator, g.problems)
+
+
+def test_raised_unknown_ground_is_not_free_ground(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Seen: the TurtleBot3 map with --unknown height put the robot at z = 0.5 on unknown
+    ground ('the flattest one'): its known floor has no 1.5 m square clear of the pillars.
+    The report now says there is no ground and why."""
+    out = tmp_path / "w"
+    stdout = run(capsys, "map2world", MAPS["tb3"], "--geometry", "heightmap", "--unknown",
+                 "height", "-o", out)  # fmt: skip
+    why = str(spawn(out)["why"])
+    assert "no ground has room" in why and "raised unknown ground" in why
+    assert "Spawn: " in stdout

@@ -201,6 +201,8 @@ class Spawn:
     ``(x, y)`` is the centre of the robot's footprint (metres), ``z`` the highest ground under
     it (metres, so a robot whose model origin is at its lowest point rests there), ``yaw`` its
     heading (radians CCW from the map's x axis); ``why`` says how the spot was chosen.
+    ``ground`` is False when no ground has room for a robot and the spot is on an obstacle
+    (``why`` says why).
     """
 
     x: float
@@ -208,6 +210,7 @@ class Spawn:
     z: float
     yaw: float
     why: str
+    ground: bool = True
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from scan2terrain.grids.spawn import FOOTPRINT, LEVEL_SLOPE, find_spawn
+from scan2terrain.grids.spawn import FOOTPRINT, LEVEL_SLOPE, Around, find_spawn
 from scan2terrain.types import Pose2D
 
 R = 0.05
@@ -148,3 +148,86 @@ def test_square_filter_equals_scipy(seed: int) -> None:
         )
         u = (rng.random(a.shape) < 0.8).astype(np.uint8)
         assert np.array_equal(square_filter(u, half, np.minimum), ndimage.minimum_filter(u, size))
+
+
+# --- issue 25 item 4: never on an obstacle when ground has room; the ground around the grid --
+
+
+def test_heightmap_samples_keep_the_square_off_the_slope_up_to_a_wall() -> None:
+    """At 0.1 m the 1.5 m square reaches 7.5 cells each way. Walls worlds: the cells under it
+    are 7 each way, and a wall cell 8 away only touches its edge. A heightmap: Gazebo raises
+    the ground from the last floor sample to the wall sample, so the square would end half way
+    up that slope (1 m on a 2 m wall): samples 8 away must be floor too."""
+    r = 0.1
+    origin = Pose2D(-5.0, -5.0)
+    h = np.zeros((100, 100))
+    h[:, 58:] = 2.0  # a wall from x = 0.8 m (sample 58 at x = 0.85)
+    ground = h == 0
+    cells = find_spawn(h, r, origin, ground=ground, preferred=(0.5, 0.0))
+    samples = find_spawn(h, r, origin, ground=ground, preferred=(0.5, 0.0), samples=True)
+    assert cells.x == pytest.approx(0.05)  # column 50: cells 43..57 under the square
+    assert samples.x == pytest.approx(-0.05)  # column 49: samples 41..57, 58 out of reach
+    # The surface Gazebo builds (linear between samples) under the square: flat at 0.
+    from scan2terrain.grids.spawn import ground_under
+
+    for s, rise in ((cells, 1.0), (samples, 0.0)):
+        col = (s.x - origin.x) / r - 0.5
+        row = (s.y - origin.y) / r - 0.5
+        assert ground_under(h, row, col, FOOTPRINT / 2 / r) == pytest.approx(rise)
+
+
+@pytest.mark.parametrize("samples", [False, True])
+def test_a_grid_all_obstacle_spawns_on_the_ground_around_it(samples: bool) -> None:
+    """A lamppost's grid: 4 x 4 cells of 0.1 m, all of them wall. The world's slab reaches
+    10 m beyond: the spot is the nearest level spot there, off the post, on the ground."""
+    r = 0.1
+    origin = Pose2D(-0.2, -0.2)
+    h = np.full((4, 4), 2.0)
+    ground = np.zeros(h.shape, dtype=bool)
+    s = find_spawn(
+        h, r, origin, ground=ground, free=~ground, samples=samples, around=Around((100,) * 4, 0.0)
+    )
+    assert s.ground and s.z == 0.0
+    assert "beyond its edge" in s.why
+    half = FOOTPRINT / 2 + (r / 2 if samples else 0.0)
+    # Off the post by the square's half side (and a sample's reach for a heightmap), nearest.
+    gap = max(abs(s.x) - 0.2, abs(s.y) - 0.2)
+    assert half - 1e-9 <= gap <= half + r + 1e-9
+    assert min(abs(s.x), abs(s.y)) <= r  # straight out from the post's side
+
+
+def test_ground_around_counts_only_where_the_grid_leaves_off() -> None:
+    """A free room on the grid is still preferred to the ground around it."""
+    origin = Pose2D(-5.0, -5.0)
+    h = np.zeros((200, 200))
+    h[:, :60] = 2.0  # walls over the west side, the origin in the room to the east
+    s = find_spawn(h, R, origin, ground=h == 0, free=h == 0, around=Around((400,) * 4, 0.0))
+    assert (s.x, s.y) == pytest.approx((0.025, 0.025)) and "free" in s.why
+
+
+@pytest.mark.parametrize("samples", [False, True])
+def test_no_ground_with_room_says_so_and_why(samples: bool) -> None:
+    """No ground around and none on the grid: the spot is on the obstacle, and why says there
+    is no ground and why (too small, or every square touches a wall)."""
+    r = 0.1
+    small = find_spawn(np.full((5, 5), 2.0), r, Pose2D(-0.25, -0.25), ground=np.zeros((5, 5), bool),
+                       samples=samples)  # fmt: skip
+    assert not small.ground and small.z == 2.0
+    assert "no ground has room" in small.why and "0.5 x 0.5 m, smaller than" in small.why
+    h = np.full((40, 40), 2.0)
+    h[::10, ::10] = 0.0  # a few holes, none with room
+    walled = find_spawn(h, r, Pose2D(-2.0, -2.0), ground=h == 0, samples=samples)
+    assert not walled.ground and "every 1.5 m square" in walled.why
+    assert ("slope" in walled.why) == samples
+    # The padding of a heightmap: a sample or two around a 3 x 3 m block of walls is no room.
+    field = find_spawn(np.full((30, 30), 2.0), r, Pose2D(-1.5, -1.5),
+                       ground=np.zeros((30, 30), bool), samples=True,
+                       around=Around((1, 1, 2, 2), 0.0))  # fmt: skip
+    assert not field.ground and "every 1.5 m square" in field.why
+
+
+def test_ground_around_at_absurdly_fine_cells_is_bounded() -> None:
+    """A slab of 10 m at 1e-12 m cells is 1e13 cells: only AROUND_MAX of them are searched
+    (no MemoryError); the square does not fit, and why says so."""
+    s = find_spawn(np.zeros((6, 7)), 1e-12, Pose2D(0.0, 0.0), around=Around((10**13,) * 4, 0.0))
+    assert math.isfinite(s.x) and s.z == 0.0

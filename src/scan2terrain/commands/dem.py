@@ -27,6 +27,7 @@ from scan2terrain.steps import (
     minus,
     refuse_existing,
     spawn_for,
+    terrain_around,
 )
 from scan2terrain.types import (
     HeightGrid,
@@ -129,7 +130,14 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
         preview=make_preview(grey8(before, z0, top), grey8(heights, z0, top), cfg, occupancy=False),
         extra=extra,
         comment_extra="".join(f" {n}\n" for n in notes),
-        spawn=spawn_for(above + np.float32(z0), res, origin, None),
+        spawn=spawn_for(
+            above + np.float32(z0),
+            res,
+            origin,
+            None,
+            samples=True,
+            around=terrain_around(hm, 1, z0),
+        ),
     )
     result.notes.extend(notes)
     return result

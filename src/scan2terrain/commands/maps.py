@@ -40,6 +40,7 @@ from scan2terrain.steps import (
     place_on_canvas,
     refuse_existing,
     spawn_for,
+    terrain_around,
     terrain_layout,
 )
 from scan2terrain.types import (
@@ -126,6 +127,9 @@ def occupancy_world(
             start,
             ground=heights <= 0,
             free=aligned == FREE,
+            samples=True,
+            # The padding is ground where unknown cells are (terrain.unknown free).
+            around=terrain_around(hm, t.upsample, pad) if pad <= 0 else None,
         ),
     )
 
@@ -166,7 +170,14 @@ def height_world(
             grey8(before, floor, top), grey8(filled, floor, top), cfg, occupancy=False
         ),
         extra=extra,
-        spawn=spawn_for(aligned, grid.resolution, world_origin, start),
+        spawn=spawn_for(
+            aligned,
+            grid.resolution,
+            world_origin,
+            start,
+            samples=True,
+            around=terrain_around(hm, cfg.terrain.upsample, floor),
+        ),
     )
 
 
@@ -205,7 +216,14 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
         levels=levels,
         map_out=None,
         preview=make_preview(values, filtered, cfg, occupancy=False),
-        spawn=spawn_for(heights, res, world_origin, None),
+        spawn=spawn_for(
+            heights,
+            res,
+            world_origin,
+            None,
+            samples=True,
+            around=terrain_around(hm, cfg.terrain.upsample, 0.0),
+        ),
     )
 
 

@@ -4,16 +4,27 @@ The ground is the world's own height field in the map frame (walls at their heig
 its own): a spot is *level* when the ground under a square of ``FOOTPRINT`` metres a side (room
 for a 1 x 1 m robot at any heading, with a margin) rises by no more than ``LEVEL_SLOPE`` across
 it, and *free* when, where the caller knows it, every cell under it is known free space. The
-chosen spot is the free, level cell nearest the preferred point, else the level one nearest,
-else the most level one; ``z`` is the highest ground under the footprint.
+chosen spot is the free, level cell nearest the preferred point, else the level one nearest
+(on the ground the world has around the grid too, :class:`Around`: a walls world's slab, a
+heightmap's padding), else the most level spot of ground; ``z`` is the highest ground under the
+footprint. Where no ground has room at all (a grid smaller than the robot, or all walls), the
+spot is the flattest one anyway and its ``why`` says there is no ground and why
+(``Spawn.ground`` is False).
 
-Pure array work (scipy's separable min/max filters); searched first within ``NEAR`` metres of the
+Cells or samples: a walls world's cell is a flat square, so the square may reach the edge of
+a wall cell; a heightmap's cell is a sample Gazebo interpolates to its neighbours, so a wall
+sample raises the ground up to the next sample, and the square must keep off that slope
+(``samples=True``: the samples under the square reach one more sample out when the square
+ends between two).
+
+Pure array work (separable min/max filters); searched first within ``NEAR`` metres of the
 preferred point, the whole grid only when nothing there will do.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -30,6 +41,19 @@ LEVEL_SLOPE = math.tan(math.radians(2.0))
 LEVEL_RISE = 0.02
 #: The first search looks this far (metres) from the preferred point.
 NEAR = 25.0
+#: At most this many cells of the ground around a grid are searched each side (enough for the
+#: footprint down to 1.5 mm cells; finer grids are searched on themselves only).
+AROUND_MAX = 1024
+
+
+@dataclass(frozen=True)
+class Around:
+    """Level ground the world has beyond the grid, at ``height`` metres: ``cells`` of it
+    (left, bottom, right, top: columns before column 0, rows before row 0, columns after the
+    last, rows after the last), in the grid's own axes and cells. Never known free space."""
+
+    cells: tuple[int, int, int, int]
+    height: float
 
 
 def find_spawn(
@@ -42,6 +66,8 @@ def find_spawn(
     ground: NDArray[np.bool_] | None = None,
     free: NDArray[np.bool_] | None = None,
     why: str = "",
+    samples: bool = False,
+    around: Around | None = None,
 ) -> Spawn:
     """The spawn spot of a height field (``heights`` (H, W) metres, grid order: row 0 = lowest
     y; every cell a height, as the world has it).
@@ -50,26 +76,38 @@ def find_spawn(
     grid's centre); ``ground`` marks the cells a robot may stand on (None: all; walls are not),
     ``free`` those known to be free space (preferred; None: all ground). ``yaw`` is
     passed through; ``why`` (how the preferred point was chosen) starts the spawn's ``why``.
+    ``samples``: the heights are samples Gazebo interpolates between (a heightmap), not flat
+    cells (see the module docstring). ``around``: the ground beyond the grid, searched too.
     """
     h = np.asarray(heights, dtype=np.float64)
     if h.ndim != 2 or h.size == 0:
         raise ValueError(f"heights must be a non-empty 2D array, got shape {h.shape}")
-    rows, cols = h.shape
     r = float(resolution)
     if preferred is None:
-        preferred, why = _default_point(rows, cols, r, origin)
+        preferred, why = _default_point(h.shape[0], h.shape[1], r, origin)
+    ok = np.ones(h.shape, dtype=bool) if ground is None else np.asarray(ground, dtype=bool)
+    pref = ok if free is None else ok & free
+    if around is not None:
+        left, bottom, right, top = (min(max(n, 0), AROUND_MAX) for n in around.cells)
+        around = Around((left, bottom, right, top), around.height)
+    # Windows never larger than the grid (and the ground around it): at absurdly fine cells
+    # (1e-12 m) the footprint in cells would overflow the filters' sizes.
+    limit = max(h.shape) + (0 if around is None else 2 * max(around.cells))
+    reach = min(FOOTPRINT / 2 / r, limit)
+    half = max(1, math.ceil(reach) if samples else math.ceil(reach + 0.5) - 1)
     row, col = _cell_of(preferred, r, origin)
-    # Windows never larger than the grid: at absurdly fine cells (1e-12 m) the footprint in
-    # cells would overflow the filters' sizes.
-    limit = max(rows, cols)
-    half = max(1, math.ceil(min(FOOTPRINT / 2 / r, limit) + 0.5) - 1)
-    near = max(half + 1, math.ceil(min(NEAR / r, limit)))
+    core = (slice(0, h.shape[0]), slice(0, h.shape[1]))  # the grid itself
+    if around is not None:
+        h, ok, pref, origin, core = _widen(
+            h, ok=ok, pref=pref, origin=origin, r=r, around=around, half=half, cell=(row, col)
+        )
+        row, col = row + core[0].start, col + core[1].start
+    rows, cols = h.shape
+    near = max(half + 1, math.ceil(min(NEAR / r, max(rows, cols))))
     window = (
         slice(max(0, min(row, rows - 1) - near), min(rows, max(row, 0) + near + 1)),
         slice(max(0, min(col, cols - 1) - near), min(cols, max(col, 0) + near + 1)),
     )
-    ok = np.ones(h.shape, dtype=bool) if ground is None else np.asarray(ground, dtype=bool)
-    pref = ok if free is None else ok & free
     (pr, pc), z, how = _search(h, ok, pref, half=half, r=r, row=row, col=col, part=window)
     if how != "free" and window != (slice(0, rows), slice(0, cols)):
         better = _search(
@@ -80,16 +118,83 @@ def find_spawn(
     if r > FOOTPRINT / 4:  # coarse cells: the surface between samples, not their maximum
         z = ground_under(h, pr, pc, FOOTPRINT / 2 / r)
     x, y = origin.transform(np.array((pc + 0.5) * r), np.array((pr + 0.5) * r))
+    on_grid = all(
+        c.start <= i - half and i + half < c.stop for i, c in zip((pr, pc), core, strict=True)
+    )
+    if how in _HOW:
+        text = _BESIDE if how == "level" and not on_grid else _HOW[how]
+    else:
+        text = _none(how, h.shape, r, samples)
     where = f"{why}: " if why else ""
-    return Spawn(float(x), float(y), z, float(yaw), f"{where}{_HOW[how]}")
+    return Spawn(float(x), float(y), z, float(yaw), f"{where}{text}", ground=how in _GROUND)
 
 
-_RANK = {"free": 0, "level": 1, "flattest": 2}
+def _widen(
+    h: NDArray[np.float64],
+    *,
+    ok: NDArray[np.bool_],
+    pref: NDArray[np.bool_],
+    origin: Pose2D,
+    r: float,
+    around: Around,
+    half: int,
+    cell: tuple[int, int],
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], Pose2D, tuple[slice, slice]]:
+    """The grid with the ground around it (level, ground, never known free), its origin, and
+    where the grid lies in it. Only as much of that ground as a spot can need: a square just
+    off the edge (2 half + 1 cells), or out to the preferred ``cell`` (row, column of the grid)
+    when that lies beyond it."""
+    row, col = cell
+    rows, cols = h.shape
+    beyond = (-col, -row, col - cols + 1, row - rows + 1)  # how far out the point lies
+    left, bottom, right, top = (
+        max(0, min(n, 2 * half + 2 + max(0, b))) for n, b in zip(around.cells, beyond, strict=True)
+    )
+    width = ((bottom, top), (left, right))
+    x0, y0 = origin.transform(np.array(-left * r), np.array(-bottom * r))
+    return (
+        np.pad(h, width, constant_values=around.height),
+        np.pad(ok, width, constant_values=True),
+        np.pad(pref, width, constant_values=False),
+        Pose2D(float(x0), float(y0), origin.yaw),
+        (slice(bottom, bottom + rows), slice(left, left + cols)),
+    )
+
+
+_RANK = {"free": 0, "level": 1, "flattest": 2, "walled": 3, "small": 4}
+#: The ranks that stand on ground (not on a wall or an obstacle).
+_GROUND = ("free", "level", "flattest")
 _HOW = {
     "free": "the nearest free, level spot with room for a 1 x 1 m robot",
     "level": "the nearest level spot with room for a 1 x 1 m robot (no known free space there)",
     "flattest": "no level spot has room for a 1 x 1 m robot: the flattest one",
 }
+_BESIDE = (
+    "no free, level spot on the map has room for a 1 x 1 m robot: the nearest level spot"
+    " reaching beyond its edge, on the ground the world has around it"
+)
+
+
+def _none(how: str, shape: tuple[int, int], r: float, samples: bool) -> str:
+    """Why no ground has room for the robot ("small": no square fits; "walled": each touches
+    an obstacle), and where the spot is instead."""
+    if how == "small":
+        size = f"{shape[1] * r:g} x {shape[0] * r:g} m"
+        because = (
+            f"the world's ground is {size}, smaller than the {FOOTPRINT:g} m square a robot"
+            " needs, with no ground around it"
+        )
+    else:
+        because = (
+            f"every {FOOTPRINT:g} m square of the world touches something above its floor (a"
+            " wall, an obstacle, raised unknown ground)"
+        )
+        if samples:
+            because += ", or the slope Gazebo makes up to one, a sample wide"
+    return (
+        f"no ground has room for a 1 x 1 m robot: {because}; this is the flattest spot, on"
+        " an obstacle"
+    )
 
 
 def _default_point(
@@ -150,15 +255,15 @@ def _search(
             i = int(np.argmin(flat))
             pr, pc = divmod(i, h.shape[1])
             return (pr + r0, pc + c0), float(top[pr, pc]), how
-    candidates = inside & on_ground
+    candidates, how = inside & on_ground, "flattest"
     if not candidates.any():
-        candidates = inside if inside.any() else np.ones(h.shape, dtype=bool)
+        candidates, how = (inside, "walled") if inside.any() else (np.ones(h.shape, bool), "small")
     # Nothing level: the flattest spot, nearest among equals.
     key = np.where(candidates, relief, np.inf)
     best = key == key.min()
     i = int(np.argmin(np.where(best, dist2, np.iinfo(np.int64).max)))
     pr, pc = divmod(i, h.shape[1])
-    return (pr + r0, pc + c0), float(top[pr, pc]), "flattest"
+    return (pr + r0, pc + c0), float(top[pr, pc]), how
 
 
 def ground_under(

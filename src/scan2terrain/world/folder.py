@@ -111,6 +111,8 @@ def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite
     """The one writer of world folders, atomically: map/, each simulator's models and world,
     spawn.yaml, preview, extra files, the effective config. Returns the completed report."""
     result = folder.result
+    if result.spawn is not None and not result.spawn.ground:
+        result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, folder.map_out)
         for part in folder.worlds:

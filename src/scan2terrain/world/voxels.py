@@ -39,9 +39,10 @@ from scan2terrain.config import Config
 from scan2terrain.errors import InputError
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.grids.spawn import Around
 from scan2terrain.octree.keys import KEY_OFFSET
 from scan2terrain.steps import Preview, spawn_for
-from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, Start
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Start
 from scan2terrain.world.folder import (
     ExtraFiles,
     Result,
@@ -189,13 +190,15 @@ def voxel_mesh_world(
         floor_top = np.full(map_out.shape, z_ground)
     walls = map_out.data == OCCUPIED
     wall_top = float(hi[2]) if plane is not None else z_ground + OBSTACLE_TOP
+    on_slab, around = _slab_around(map_out, ground)
     spawn = spawn_for(
         np.where(walls, wall_top, floor_top).astype(np.float64),
         resolution,
         map_out.origin,
         start,
-        ground=~walls,
+        ground=~walls & on_slab,
         free=map_out.data == FREE,
+        around=around,
     )
     triangles = sum(len(c.mesh.faces) for c in chunks)
     summary = (
@@ -265,6 +268,27 @@ def voxel_mesh_world(
     # The projection is in world axes already (yaw 0, on voxel boundaries).
     folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
+
+
+def _slab_around(grid: OccupancyGrid, ground: sdf.Ground) -> tuple[NDArray[np.bool_], Around]:
+    """Where the ground slab (``GROUND_MARGIN`` beyond the voxels) is under ``grid`` (yaw 0,
+    as projected from keys): the cells wholly on it, and the whole cells of it beyond the grid
+    (its top is ``ground.z``). Free space the rays swept may reach past the slab."""
+    r, (rows, cols) = grid.resolution, grid.shape
+    x0, y0 = grid.origin.x, grid.origin.y
+    sx, sy = (s / 2 + sdf.GROUND_MARGIN for s in ground.size)
+    # Slab edges in cells from the grid's lower-left corner (a hair of rounding forgiven).
+    left, right = ((ground.centre[0] - x0 + d * sx) / r for d in (-1, 1))
+    bottom, top = ((ground.centre[1] - y0 + d * sy) / r for d in (-1, 1))
+    eps = 1e-6
+    c, rr = np.arange(cols), np.arange(rows)
+    on_x = (c >= left - eps) & (c + 1 <= right + eps)
+    on_y = (rr >= bottom - eps) & (rr + 1 <= top + eps)
+    cells = (
+        math.floor(-left + eps), math.floor(-bottom + eps),
+        math.floor(right - cols + eps), math.floor(top - rows + eps),
+    )  # fmt: skip
+    return on_y[:, None] & on_x[None, :], Around(cells, ground.z)
 
 
 def scan_plane(
