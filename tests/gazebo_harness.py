@@ -299,6 +299,16 @@ def probe_shapes(world: Path, model_dirs: list[Path], tmp: Path) -> tuple[str, l
     return str(doc["sdf_version"]), [_to_shape(e) for e in doc.get("shapes", [])]
 
 
+def probe_spherical(world: Path, model_dirs: list[Path], tmp: Path) -> dict[str, Any] | None:
+    """The first world's ``<spherical_coordinates>`` as SDFormat and gz-math read them (None
+    without one): ``latitude_deg``, ``longitude_deg``, ``elevation``, ``heading_deg``, and
+    ``points``: rows (x, y, z, latitude, longitude, elevation) of world points as gz-sim places
+    them on the earth (gz-math's PositionTransform from the heading-adjusted world frame)."""
+    doc = _run_probe(world, model_dirs, tmp)
+    found: dict[str, Any] | None = doc.get("spherical")
+    return found
+
+
 def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
     shape = ShapeProbe(
         model=entry["model"],

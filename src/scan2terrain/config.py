@@ -214,8 +214,13 @@ class ScansConfig:
     #: Which message of an OccupancyGrid topic: -1 is the last, 0 the first.
     map_message: int = -1
     #: Cloud files: subtract a local origin (auto: when the points lie beyond 1 km of the
-    #: origin, e.g. UTM, the rounded centre of their bounding box) | none.
-    local_origin: LocalOrigin = "auto"
+    #: origin, e.g. UTM, the rounded centre of their bounding box) | none | [x, y, z] (this
+    #: one, in the clouds' own coordinates). The effective config records the origin that
+    #: was subtracted as [x, y, z], so a rerun, or another tile of the survey, shares it.
+    local_origin: LocalOrigin | list[float] = "auto"
+    #: Cloud files: their coordinate reference system (what pyproj reads: "EPSG:32610", WKT),
+    #: for worlds placed on the earth (<spherical_coordinates>); None: a LAS/LAZ file's own.
+    crs: str | None = None
     #: Cloud files: statistical outlier removal (Open3D's neighbour search): a point whose mean
     #: distance to its ``outlier_neighbours`` nearest points is above the mean of all such
     #: distances + this many standard deviations is dropped; None = off.
@@ -416,6 +421,18 @@ class Config:
             "> 0 metres, or null (4 cells, at least 1 m)",
         )
         sc = c.scans
+        lo = sc.local_origin
+        _check(
+            lo in LOCAL_ORIGINS
+            or (
+                isinstance(lo, list)
+                and len(lo) == 3
+                and all(isinstance(v, (int, float)) and abs(v) <= MAX_ORIGIN for v in lo)
+            ),
+            "scans.local_origin",
+            lo,
+            f"auto, none or [x, y, z] within {MAX_ORIGIN:g} of 0",
+        )
         for name in ("mount", "pose"):
             v = getattr(sc, name)
             _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
@@ -513,6 +530,7 @@ MAX_METRES = 1e5  #: terrain heights
 MIN_CELL, MAX_CELL = 1e-4, 1e5  #: pixel and voxel sizes, metres
 MIN_VOXEL = 1e-3  #: OctoMap keys are 16-bit: at 1 mm the octree spans 65 m
 MAX_SIDE = 1 << 20  #: canvas sides and shifts, heightmap and map tile sides, cells
+MAX_ORIGIN = 1e9  #: a local origin's coordinates (a projected CRS spans < 1e8 m)
 
 
 def _check_choices(target: Any, prefix: str = "") -> None:
@@ -611,6 +629,10 @@ def _apply(target: Any, doc: dict[str, Any], source: str, prefix: str = "") -> N
 def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
     if get_origin(hint) is Literal:  # the vocabulary: its values' type; validate checks them
         hint = type(get_args(hint)[0])
+    # A word of the vocabulary or a value (scans.local_origin: auto | [x, y, z]).
+    words = [a for a in get_args(hint) if get_origin(a) is Literal]
+    if isinstance(value, str) and words and isinstance(get_args(words[0])[0], str):
+        return value
     text = str(hint)
     if value is None:
         if "None" in text:

@@ -214,6 +214,21 @@ class Spawn:
 
 
 @dataclass(frozen=True)
+class EarthAnchor:
+    """Where a world's origin is on the earth, as SDF's ``<spherical_coordinates>`` says it:
+    WGS 84 latitude and longitude (degrees), elevation (metres), and ``heading_deg``, the
+    angle counter-clockwise from east to the world's x axis (gz-math: ENU = R(heading) local).
+    ``scale``: the source projection's scale factor there (grid distance / true distance), so
+    a point d metres away is off by about ``|scale - 1| d`` in Gazebo's tangent-plane frame."""
+
+    latitude_deg: float
+    longitude_deg: float
+    elevation: float
+    heading_deg: float
+    scale: float
+
+
+@dataclass(frozen=True)
 class Start:
     """Where the robot was when the recording began (map frame), to spawn it there again."""
 

@@ -89,6 +89,7 @@
 #include <ignition/common/MeshManager.hh>
 #include <ignition/common/SubMesh.hh>
 #include <ignition/math/Pose3.hh>
+#include <ignition/math/SphericalCoordinates.hh>
 #include <ignition/math/Vector3.hh>
 
 #include <sys/resource.h>
@@ -1006,8 +1007,38 @@ int main(int argc, char **argv)
   // SDFormat 12); OriginalVersion() is the <sdf version="..."> of the file.
   const std::string original =
       root.Element() ? root.Element()->OriginalVersion() : std::string();
+  // <spherical_coordinates> of the first world: its reference, and where world points lie
+  // on the earth as gz-sim puts them (PositionTransform from LOCAL2, the frame gz-sim's
+  // NavSat uses with gz-math 6; gz-math 7 calls it LOCAL).
+  std::ostringstream spherical;
+  spherical << "null";
+  const ignition::math::SphericalCoordinates *sc =
+      root.WorldCount() > 0 ? root.WorldByIndex(0)->SphericalCoordinates() : nullptr;
+  if (sc != nullptr)
+  {
+    spherical.str("");
+    spherical.precision(17);
+    spherical << "{\"latitude_deg\": " << sc->LatitudeReference().Degree()
+              << ", \"longitude_deg\": " << sc->LongitudeReference().Degree()
+              << ", \"elevation\": " << sc->ElevationReference()
+              << ", \"heading_deg\": " << sc->HeadingOffset().Degree() << ", \"points\": [";
+    const double pts[][3] = {{0, 0, 0},    {500, 0, 0},     {0, 500, 0},
+                             {-300, -400, 0}, {1000, 1000, 10}, {0, 0, 100}};
+    bool first = true;
+    for (const auto &q : pts)
+    {
+      const ignition::math::Vector3d rad = sc->PositionTransform(
+          {q[0], q[1], q[2]}, ignition::math::SphericalCoordinates::LOCAL2,
+          ignition::math::SphericalCoordinates::SPHERICAL);
+      spherical << (first ? "" : ", ") << "[" << q[0] << ", " << q[1] << ", " << q[2] << ", "
+                << IGN_RTOD(rad.X()) << ", " << IGN_RTOD(rad.Y()) << ", " << rad.Z() << "]";
+      first = false;
+    }
+    spherical << "]}";
+  }
   std::cout << "{\"sdf_version\": " << Str(root.Version())
             << ", \"sdf_original_version\": " << Str(original)
+            << ", \"spherical\": " << spherical.str()
             << ", \"heightmaps\": [";
   for (std::size_t i = 0; i < g_entries.size(); ++i)
     std::cout << (i ? ",\n  " : "\n  ") << g_entries[i];

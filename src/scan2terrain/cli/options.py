@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from scan2terrain.config import (
     BIT_DEPTHS,
@@ -184,6 +185,43 @@ def cloud_filter_options(p: argparse.ArgumentParser) -> None:
         type=int,
         dest="scans.outlier_neighbours",
         help="neighbours each point's mean distance is taken over, for --outliers",
+    )
+
+
+class _LocalOrigin(argparse.Action):
+    """--local-origin auto | none | X Y Z."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
+        if values in (["auto"], ["none"]):
+            setattr(namespace, self.dest, values[0])
+            return
+        try:
+            xyz = [float(v) for v in values]
+        except ValueError:
+            xyz = []
+        if len(xyz) != 3:
+            parser.error(f"argument --local-origin: expected auto, none or X Y Z, not {values}")
+        setattr(namespace, self.dest, xyz)
+
+
+def georef_options(p: argparse.ArgumentParser) -> None:
+    """Where georeferenced clouds (UTM, state plane) are on the earth (cloud2world)."""
+    g = p.add_argument_group("georeference")
+    g.add_argument(
+        "--local-origin",
+        nargs="+",
+        action=_LocalOrigin,
+        metavar="ORIGIN",
+        dest="scans.local_origin",
+        help="subtracted from the clouds' coordinates: auto (their rounded centre, when they "
+        "lie beyond 1 km of 0), none, or this point (the effective config records the one used)",
+    )
+    g.add_argument(
+        "--crs",
+        dest="scans.crs",
+        metavar="CRS",
+        help="the clouds' projected CRS (EPSG:32610, WKT, ...), for <spherical_coordinates> in "
+        "the worlds (default: a LAS/LAZ file's own)",
     )
 
 

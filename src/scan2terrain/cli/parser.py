@@ -15,6 +15,7 @@ from scan2terrain.cli.options import (
     cloud_filter_options,
     common,
     geometry_options,
+    georef_options,
     octree_options,
     path_or_url,
     progress_option,
@@ -308,6 +309,7 @@ def bag_commands(sub: Any) -> None:
     voxel_options(c)
     scan_options(c, bag=False)
     cloud_filter_options(c)
+    georef_options(c)
     stream_options(c)
     progress_option(c)
 

@@ -371,7 +371,11 @@ def cloud2world(
 
     refuse_existing(out, overwrite, tuple(files))
     grid_options(cfg)
+    from scan2terrain.readers.crs import georeferenced, parse_crs
     from scan2terrain.readers.las import is_url, url_path
+
+    if cfg.scans.crs is not None:  # refused before any point is read
+        parse_crs(cfg.scans.crs)
 
     if streaming(cfg):
         from scan2terrain.commands import stream
@@ -381,6 +385,7 @@ def cloud2world(
             cfg = _cloud_resolution(cfg, *stream.cloud_bounds(files), chosen)
         streamed = stream.stream_clouds(files, cfg, stream_progress)
         source = url_path(files[0])
+        cfg = georeferenced(cfg, np.asarray(streamed.origin), files, chosen)
         result = stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
         result.notes[:0] = chosen
         return result
@@ -389,6 +394,7 @@ def cloud2world(
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
     voxels = cfg.world.geometry == "voxels"
     clouds, origin, notes, rgb = read_clouds([Path(f) for f in files], cfg, colours=voxels)
+    cfg = georeferenced(cfg, origin, files, notes)
     if cfg.octree.resolution is None:
         from scan2terrain.commands.stream import cloud_bounds
 

@@ -102,6 +102,7 @@ class Streamed:
     tiles: TileSet
     notes: tuple[str, ...]
     start: Start | None = None  #: a bag's first scan pose, as the octree path finds it
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: the clouds' local origin
 
 
 # --- planning ---------------------------------------------------------------------------------
@@ -415,7 +416,7 @@ def stream_clouds(
 ) -> Streamed:
     chunks, job, notes = plan_clouds(files, cfg)
     tiles = run(chunks, job, cfg, progress)
-    return Streamed(tiles, tuple(notes))
+    return Streamed(tiles, tuple(notes), origin=job.origin)
 
 
 def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:

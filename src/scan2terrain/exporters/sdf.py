@@ -33,6 +33,7 @@ from lxml import etree
 from numpy.typing import NDArray
 
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap
+from scan2terrain.types import EarthAnchor
 
 SDF_VERSION = {GZ: "1.9", CLASSIC: "1.6"}
 #: Gazebo's own default vertex sampling for each SDF version we write.
@@ -189,14 +190,23 @@ def model_config(p: Placement, description: str) -> bytes:
     return _bytes(model)
 
 
-def world_sdf(p: Placement, *, world_name: str, comment: str) -> bytes:
+def world_sdf(
+    p: Placement, *, world_name: str, comment: str, anchor: EarthAnchor | None = None
+) -> bytes:
     """A world holding a sun and the terrain model (by ``model://`` URI)."""
-    return tiled_world_sdf([p], world_name=world_name, comment=comment)
+    return tiled_world_sdf([p], world_name=world_name, comment=comment, anchor=anchor)
 
 
-def tiled_world_sdf(placements: Sequence[Placement], *, world_name: str, comment: str) -> bytes:
+def tiled_world_sdf(
+    placements: Sequence[Placement],
+    *,
+    world_name: str,
+    comment: str,
+    anchor: EarthAnchor | None = None,
+) -> bytes:
     """A world holding a sun and every model of ``placements`` (terrain tiles, by ``model://``
-    URI, each at the world origin: a tile's offset is in its collision pose and visual pos).
+    URI, each at the world origin: a tile's offset is in its collision pose and visual pos),
+    and, with ``anchor``, where its origin is on the earth (``<spherical_coordinates>``).
 
     All placements are for one simulator; gz-sim only when there are several heightmaps
     (Gazebo Classic renders one heightmap per scene and keeps each at the world origin).
@@ -224,6 +234,14 @@ def tiled_world_sdf(placements: Sequence[Placement], *, world_name: str, comment
         physics = _sub(world, "physics", name="ode", type="ode")
         _sub(physics, "max_step_size", "0.001")
         _sub(physics, "real_time_factor", "1")
+    if anchor is not None:
+        sph = _sub(world, "spherical_coordinates")
+        _sub(sph, "surface_model", "EARTH_WGS84")
+        _sub(sph, "world_frame_orientation", "ENU")
+        _sub(sph, "latitude_deg", _num(anchor.latitude_deg, 9))
+        _sub(sph, "longitude_deg", _num(anchor.longitude_deg, 9))
+        _sub(sph, "elevation", _num(anchor.elevation, 3))
+        _sub(sph, "heading_deg", _num(anchor.heading_deg, 6))
     sun = _sub(world, "light", name="sun", type="directional")
     _sub(sun, "cast_shadows", "true")
     _sub(sun, "pose", "0 0 10 0 0 0")
@@ -524,3 +542,9 @@ def _extend(parent: etree._Element, parts: list[str]) -> None:
 
 def _bytes(root: etree._Element) -> bytes:
     return bytes(etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="UTF-8"))
+
+
+def _num(v: float, places: int) -> str:
+    """``v`` rounded to ``places`` decimals, without trailing zeros (1e-9 degrees: 0.1 mm)."""
+    text = f"{v:.{places}f}".rstrip("0").rstrip(".")
+    return "0" if text in ("", "-0") else text

@@ -31,11 +31,17 @@ def start_of(scan: Scan) -> Start:
 
 
 def local_origin(
-    lo: NDArray[np.float64], hi: NDArray[np.float64], mode: str, notes: list[str]
+    lo: NDArray[np.float64], hi: NDArray[np.float64], mode: str | list[float], notes: list[str]
 ) -> NDArray[np.float64]:
-    """The origin to subtract from clouds spanning ``lo``..``hi`` (x, y, z): their rounded
-    centre when they lie beyond FAR of the origin and ``mode`` (``scans.local_origin``) is
-    auto, else zero; a note says which was subtracted."""
+    """The origin to subtract from clouds spanning ``lo``..``hi`` (x, y, z): the one given
+    (``scans.local_origin: [x, y, z]``), or their rounded centre when they lie beyond FAR of
+    the origin and the mode is auto, else zero; a note says which was subtracted."""
+    if isinstance(mode, list):
+        shown = ", ".join(f"{v:.6f}".rstrip("0").rstrip(".") for v in mode)
+        notes.append(
+            f"local origin ({shown}) subtracted (scans.local_origin): world = cloud - origin"
+        )
+        return np.asarray(mode, dtype=np.float64)
     if mode != "auto" or max(np.abs(lo).max(), np.abs(hi).max()) <= FAR:
         return np.zeros(3)
     origin: NDArray[np.float64] = np.round((np.asarray(lo) + np.asarray(hi)) / 2)

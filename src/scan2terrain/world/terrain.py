@@ -27,6 +27,7 @@ from scan2terrain.world.folder import (
     spawn_pose,
     write_world_folder,
 )
+from scan2terrain.world.georef import georeference
 from scan2terrain.world.names import model_name_for, terrain_name
 
 
@@ -79,11 +80,16 @@ def write_terrain(
             hm, png, p, levels=levels, comment=comment, about=about, textures=textures
         )
         # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
-        pose = spawn_pose(spawn, p.offset, 0.0 if sim == GZ else hm.z_min)
+        z_offset = 0.0 if sim == GZ else hm.z_min
+        pose = spawn_pose(spawn, p.offset, z_offset)
+        where, anchor = georeference(cfg, p.offset, z_offset)
         world = sdf.world_sdf(
-            p, world_name="scan2terrain", comment=comment + spawn_comment(spawn, pose)
+            p,
+            world_name="scan2terrain",
+            comment=comment + where + spawn_comment(spawn, pose),
+            anchor=anchor,
         )
-        parts.append(SimWorld(p, files, world, p.offset, comment, pose))
+        parts.append(SimWorld(p, files, world, p.offset, comment + where, pose))
     folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
@@ -156,11 +162,15 @@ def write_tiles(
         )
         placements.append(p)
     pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
+    where, anchor = georeference(cfg, (0.0, 0.0))
     world = sdf.tiled_world_sdf(
-        placements, world_name="scan2terrain", comment=world_comment + spawn_comment(spawn, pose)
+        placements,
+        world_name="scan2terrain",
+        comment=world_comment + where + spawn_comment(spawn, pose),
+        anchor=anchor,
     )
     whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
-    part = SimWorld(whole, files, world, (0.0, 0.0), world_comment, pose)
+    part = SimWorld(whole, files, world, (0.0, 0.0), world_comment + where, pose)
     plan = WorldFolder(source, result, [part], map_out, preview, extra or {})
     return write_world_folder(plan, out, cfg, overwrite=overwrite)
 
