@@ -88,6 +88,30 @@ def test_a_survey_gets_cells_no_finer_than_its_point_spacing(
     assert got == res and why in reason, reason
 
 
+@pytest.mark.parametrize(
+    ("hi", "points", "grid", "res"),
+    [
+        # A 2 km strip 20 m wide: one heightmap's side would make its cells 0.49 m wide and
+        # hold 25 points each; terrain is tiled, so its cells follow the points (four a cell).
+        ((2000.0, 20.0), 4_000_000, "height", 0.2),
+        ((2000.0, 20.0), 4_000_000, "occupancy", 0.49),  # walls: one map, as before
+        # A square as large: as many cells as one full heightmap at most, either way.
+        ((1000.0, 1000.0), 1_000_000_000, "height", 0.25),
+        ((400.0, 400.0), 2_400_000, "height", 0.52),  # the points' spacing decides
+        ((2000.0, 0.0), 10, "height", 0.49),  # a line: no area, its side alone
+    ],
+)
+def test_terrain_cells_follow_the_point_density_not_one_heightmaps_side(
+    hi: tuple[float, float], points: int, grid: str, res: float
+) -> None:
+    cfg = Config()
+    cfg.octree.grid = grid  # type: ignore[assignment]
+    got, reason = cloud_resolution([0.0, 0.0, 0.0], [*hi, 5.0], points, cfg)
+    assert got == res, reason
+    cells = (hi[0] / got) * (hi[1] / got)
+    assert cells <= (cfg.terrain.max_side - 1) ** 2 * 1.0001
+
+
 def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Path) -> None:
     """The autzen LAZ at 0.05 m: 265 M cells, 17.8 GB and 70 s before the budget; now one line
     with the resolution that fits and the setting that raises it, nothing written."""

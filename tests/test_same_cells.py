@@ -171,3 +171,108 @@ def test_bag2world_octree_stream_and_dask_write_the_same_bytes(
     run(capsys, "bag2world", bag, "-o", tmp_path / "dask", "--workers", 2, *common)
     assert_same_world(tmp_path / "octree", tmp_path / "stream")
     assert_same_world(tmp_path / "octree", tmp_path / "dask")
+
+
+# --- terrain: heights from the points on every path (issue 25) --------------------------------
+
+AUTZEN = (
+    Path(__file__).resolve().parent.parent / "fixtures/clouds/pc_laz_autzen_trim/autzen_trim.laz"
+)
+
+
+def heightmap_levels(folder: Path) -> int:
+    """Distinct grey levels of the gz-sim heightmap (the Classic model's image is the same)."""
+    from PIL import Image
+
+    (png,) = [
+        p
+        for p in folder.glob("models/*/materials/textures/heightmap.png")
+        if not p.parent.parent.parent.name.endswith("_classic")
+    ]
+    return len(np.unique(np.asarray(Image.open(png))))
+
+
+def assert_same_terrain(a: Path, b: Path) -> None:
+    fa, fb = world_files(a), world_files(b)
+    assert any(n.endswith("heightmap.png") for n in fa)
+    assert sorted(fa) == sorted(fb)
+    for name in fa:
+        assert fa[name] == fb[name], name
+
+
+def hill_points(rng: np.random.Generator, n: int, res: float) -> np.ndarray:
+    """(n, 3) points of a smooth hill with 6 m of relief over 40 x 30 m (and 2 cm of noise),
+    x and y within 1e-7 m of the edges of ``res`` cells."""
+    k = rng.integers(0, [round(40 / res), round(30 / res)], (n, 2))
+    xy = k * res + rng.uniform(-1e-7, 1e-7, (n, 2)) + rng.integers(0, 2, (n, 2)) * res / 2
+    z = 6 * np.exp(-((xy[:, 0] - 22) ** 2 + (xy[:, 1] - 14) ** 2) / 150) + 0.05 * xy[:, 0]
+    z += rng.normal(0, 0.02, n)
+    return np.column_stack([xy, z])
+
+
+def test_autzen_heights_are_the_points_on_every_path(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The README's example: 28 m of ground at 2 m cells was 15 levels (the voxels' 2 m
+    terraces) on the octree path against 253 streamed; and the octree path took its local
+    origin from the ground points, 43 m below the header's the streamed path takes."""
+    common = ["--las-classes", 2, "--grid", "height", "--resolution", 2, "--no-filter"]
+    out = run(capsys, "cloud2world", AUTZEN, "-o", tmp_path / "octree", *common)
+    run(capsys, "cloud2world", AUTZEN, "-o", tmp_path / "stream", "--stream", *common)
+    run(capsys, "cloud2world", AUTZEN, "-o", tmp_path / "dask", "--workers", 2, *common)
+    assert "local origin (636590, 849217, 463)" in out  # the header's bounds, as streamed
+    assert_same_terrain(tmp_path / "octree", tmp_path / "stream")
+    assert_same_terrain(tmp_path / "octree", tmp_path / "dask")
+    ground = laspy.read(AUTZEN)
+    relief = float(np.ptp(ground.z[ground.classification == 2]))
+    # Voxel centres would give at most relief / 2 m + 1 levels.
+    assert heightmap_levels(tmp_path / "octree") > 4 * (relief / 2 + 1)
+
+
+@pytest.mark.parametrize("stat", ["max", "min", "mean"])
+def test_a_smooth_hill_is_the_same_terrain_on_the_octree_and_streamed_paths(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stat: str
+) -> None:
+    """A LAS file and a PLY of a hill, points at cell edges, with a z band cutting the top
+    of the hill and one ending between voxel centres."""
+    res = 0.5
+    rng = np.random.default_rng(11)
+    _write_las(tmp_path / "hill.las", hill_points(rng, 20_000, res), 0.0, 1e-7)
+    write_points(tmp_path / "hill.ply", hill_points(rng, 20_000, res))
+    files = [tmp_path / "hill.las", tmp_path / "hill.ply"]
+    common = ["--grid", "height", "--resolution", res, "--height-stat", stat, "--no-preview"]
+    common += ["--z-max", 5.1]
+    run(capsys, "cloud2world", *files, "-o", tmp_path / "octree", *common)
+    run(capsys, "cloud2world", *files, "-o", tmp_path / "stream", "--stream", *common)
+    assert_same_terrain(tmp_path / "octree", tmp_path / "stream")
+    # 5.1 m of hill in 0.5 m voxels: at most 11 levels from voxel centres.
+    assert heightmap_levels(tmp_path / "octree") > 100
+
+
+def test_a_smooth_hill_on_dask_is_the_octree_paths_terrain(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    res = 0.25
+    rng = np.random.default_rng(12)
+    _write_las(tmp_path / "hill.las", hill_points(rng, 40_000, res), 0.0, 1e-7)
+    write_points(tmp_path / "hill.pcd", hill_points(rng, 20_000, res))
+    files = [tmp_path / "hill.las", tmp_path / "hill.pcd"]
+    common = ["--grid", "height", "--resolution", res, "--height-stat", "mean", "--no-preview"]
+    run(capsys, "cloud2world", *files, "-o", tmp_path / "octree", *common)
+    run(capsys, "cloud2world", *files, "-o", tmp_path / "dask", "--workers", 2, *common)
+    assert_same_terrain(tmp_path / "octree", tmp_path / "dask")
+
+
+def test_bag2world_end_points_terrain_is_the_same_on_every_path(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag's hits as a height grid: the octree path (end points) takes its heights from the
+    same hits the streamed path rasterises."""
+    room = synthetic_room("cloud", n_scans=6, resolution=0.025)
+    bag = room.write(tmp_path / "room.mcap", "mcap")
+    common = ["--resolution", 0.025, "--no-preview", "--no-filter", "--grid", "height"]
+    run(capsys, "bag2world", bag, "-o", tmp_path / "octree", "--insert", "endpoints", *common)
+    run(capsys, "bag2world", bag, "-o", tmp_path / "stream", "--stream", *common)
+    run(capsys, "bag2world", bag, "-o", tmp_path / "dask", "--workers", 2, *common)
+    assert_same_terrain(tmp_path / "octree", tmp_path / "stream")
+    assert_same_terrain(tmp_path / "octree", tmp_path / "dask")

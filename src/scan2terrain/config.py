@@ -170,7 +170,8 @@ class OctreeConfig:
     z_max: float | None = None
     #: occupancy (octomap_server's projection) | height (2.5D: a column statistic of occupied z).
     grid: GridKind = "occupancy"
-    #: max | min | mean of the occupied voxel centres of a column (grid: height).
+    #: max | min | mean of a column's heights (grid: height): its points' z where the grid is
+    #: made from points (clouds, bags), its occupied voxel centres from an OctoMap file.
     height_stat: HeightStat = "max"
     #: none | nearest | idw: how empty columns of a height grid are filled.
     fill: Fill = "nearest"
@@ -717,19 +718,35 @@ def cloud_resolution(
     """cloud2world's resolution for ``points`` points within ``lo``..``hi`` (metres) when none
     is given, and the reason in words. ``DEFAULT_RESOLUTION`` at robot scale. A survey (the
     longer horizontal side over ``terrain.max_side - 1`` cells of the default, the largest
-    heightmap Gazebo is given) gets the coarser of that side over those cells and twice the
-    points' mean spacing over the area, ``2 * sqrt(area / points)``: about four points a cell.
-    At one point a cell (the spacing itself) a third of the cells would get none (Poisson):
-    holes in a height grid and speckle in an occupancy grid. Both rounded up to two
-    significant digits. Robot-scale clouds keep the default: their points lie on walls and
-    objects in 3D, where the area says nothing of their spacing."""
+    heightmap Gazebo is given) gets the coarser of a size bound and twice the points' mean
+    spacing over the area, ``2 * sqrt(area / points)``: about four points a cell. At one point
+    a cell (the spacing itself) a third of the cells would get none (Poisson): holes in a
+    height grid and speckle in an occupancy grid. The size bound: an occupancy grid's longer
+    side fits one map of ``max_side - 1`` cells; a height grid (terrain, written as tiles when
+    larger than one heightmap) holds at most the cells of one full heightmap,
+    ``(max_side - 1)^2``, over the area, whatever its shape (and no finer than the default), so
+    a long strip keeps the cells its points allow. Both rounded up to two significant digits.
+    Robot-scale clouds keep the default: their points lie on walls and objects in 3D, where the
+    area says nothing of their spacing."""
     dx = max(float(hi[0]) - float(lo[0]), 0.0)
     dy = max(float(hi[1]) - float(lo[1]), 0.0)
     side = max(dx, dy)
     cells = cfg.terrain.max_side - 1
     if side <= cells * DEFAULT_RESOLUTION:
         return DEFAULT_RESOLUTION, f"resolution {DEFAULT_RESOLUTION:g} m (the default)"
-    res = two_digits_up(side / cells)
+    if cfg.octree.grid == "height" and dx * dy > 0:
+        # No finer than robot scale's default either: a thin strip has a small area.
+        res = max(two_digits_up(math.sqrt(dx * dy) / cells), DEFAULT_RESOLUTION)
+        bound = (
+            f"the clouds span {dx:,.0f} x {dy:,.0f} m, over {cells}^2 cells (one full"
+            f" terrain.max_side heightmap's) at {DEFAULT_RESOLUTION:g} m"
+        )
+    else:
+        res = two_digits_up(side / cells)
+        bound = (
+            f"the clouds span {side:,.0f} m, over terrain.max_side {cells + 1} cells at"
+            f" {DEFAULT_RESOLUTION:g} m"
+        )
     spacing = math.sqrt(dx * dy / points) if points > 0 else 0.0
     if spacing > 0 and two_digits_up(2 * spacing) > res:
         res = two_digits_up(2 * spacing)
@@ -737,10 +754,7 @@ def cloud_resolution(
             f"resolution {res:g} m (chosen: the clouds span {dx:,.0f} x {dy:,.0f} m with"
             f" {points:,} points, about four a cell; --resolution sets it)"
         )
-    return res, (
-        f"resolution {res:g} m (chosen: the clouds span {side:,.0f} m, over terrain.max_side"
-        f" {cells + 1} cells at {DEFAULT_RESOLUTION:g} m; --resolution sets it)"
-    )
+    return res, f"resolution {res:g} m (chosen: {bound}; --resolution sets it)"
 
 
 def two_digits_up(x: float) -> float:

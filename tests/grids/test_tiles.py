@@ -10,8 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scan2terrain.grids.projection import project_occupancy
+from scan2terrain.grids.projection import column_stats, project_occupancy
 from scan2terrain.grids.tiles import SUM_SCALE, Lattice, TileSet
+from scan2terrain.octree.keys import KEY_OFFSET
 from scan2terrain.octree.tree import VoxelOctree
 
 FIELDS = ("max_z", "min_z", "mean_z", "count", "known")
@@ -188,3 +189,79 @@ def test_partial_results_travel_by_the_cells_with_a_point() -> None:
     again = TileSet(Lattice(0.1, 256))
     again.merge(rec)
     assert_same(stats_of(again), stats_of(tiles))
+
+
+# --- heights within the octree's occupied voxels (ray casting) --------------------------------
+
+
+def test_heights_stay_within_the_octrees_occupied_voxels() -> None:
+    """After ray casting the octree may hold a point's voxel free (a later ray cleared it): a
+    column without an occupied voxel left is unknown, and a height beyond the column's
+    occupied voxels is moved onto their nearest face; the rest are the points' own."""
+    r = 0.5
+    k = KEY_OFFSET
+    pts = np.array(
+        [
+            [0.2, 0.2, 0.1], [0.2, 0.2, 1.7],  # column (0, 0): 1.7 was cleared
+            [1.2, 0.2, 2.2],  # column (0, 2): its only voxel cleared
+            [2.2, 0.2, 0.3], [2.2, 0.2, 0.4],  # column (0, 4): as the points say
+            [0.2, 1.2, -0.8], [0.2, 1.2, 0.9],  # column (2, 0): -0.8 cleared
+        ]
+    )  # fmt: skip
+    tiles = TileSet(Lattice(r, 4))
+    tiles.add_points(pts)
+    occupied_keys = np.array(
+        [[k, k, k], [k + 4, k, k], [k, k + 2, k + 1]], dtype=np.uint16
+    )  # z cells 0, 0, 1 (0.9 is in cell 1)
+    free_keys = np.array([[k, k, k + 3], [k + 2, k, k + 4], [k - 3, k + 6, k]], dtype=np.uint16)
+    keys = np.concatenate([occupied_keys, free_keys])
+    occupied = np.array([True] * 3 + [False] * 3)
+    octree = column_stats(keys, occupied, r)  # a wider frame: free voxels around
+    for stat, want in (
+        ("max", {(0, 0): 0.5, (0, 4): 0.4, (2, 0): 0.9}),
+        ("min", {(0, 0): 0.1, (0, 4): 0.3, (2, 0): 0.5}),
+        ("mean", {(0, 0): 0.5, (0, 4): 0.35, (2, 0): 0.5}),
+    ):
+        got = tiles.heights(stat, occupied=octree)
+        alone = tiles.heights(stat)
+        assert got.origin == alone.origin and got.heights.shape == alone.heights.shape
+        known = {(int(a), int(b)) for a, b in zip(*np.nonzero(got.known), strict=True)}
+        assert known == set(want), stat
+        for (row, col), h in want.items():
+            assert got.heights[row, col] == pytest.approx(h, abs=1e-4), (stat, row, col)
+        assert np.isnan(got.heights[~got.known]).all()
+
+
+@pytest.mark.parametrize("band", [(-math.inf, math.inf), (-0.26, 1.74)])
+def test_end_points_occupy_every_voxel_they_hit_so_the_octree_changes_no_height(
+    band: tuple[float, float],
+) -> None:
+    """The octree path of end points may take its heights from the tiles alone: every hit
+    voxel is occupied, so bounding them by the octree's columns changes nothing, even at cell
+    edges where float32 and float64 disagree."""
+    rng = np.random.default_rng(21)
+    k = rng.integers(-40, 40, (30_000, 3))
+    pts = k * 0.1 + rng.uniform(-1e-7, 1e-7, k.shape)
+    tree = VoxelOctree(0.1)
+    tree.insert_endpoints(pts)
+    keys, occupied = tree.occupied_and_free()
+    octree = column_stats(keys, occupied, 0.1, z_min=band[0], z_max=band[1])
+    tiles = TileSet(Lattice(0.1, 16, *band))
+    tiles.add_points(pts)
+    for stat in ("max", "min", "mean"):
+        a, b = tiles.heights(stat, occupied=octree), tiles.heights(stat)
+        assert a.origin == b.origin
+        assert np.array_equal(a.known, b.known)
+        assert np.array_equal(a.heights, b.heights, equal_nan=True)
+
+
+def test_cell_spreads_are_max_minus_min_of_cells_with_two_points() -> None:
+    lat = Lattice(0.25, 4, z_min=-0.5)
+    pts = cloud(9)
+    tiles = TileSet(lat)
+    tiles.add_points(pts)
+    ref = reference(pts, lat)
+    two = ref["count"] >= 2
+    want = np.sort((ref["max_z"] - ref["min_z"])[two])
+    assert np.array_equal(np.sort(tiles.cell_spreads()), want)
+    assert len(want) > 100 and (ref["count"] == 1).any()

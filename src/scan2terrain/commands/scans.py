@@ -25,7 +25,14 @@ from scan2terrain.commands.voxels import voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
-from scan2terrain.steps import ScanProgress, grid_options, new_tree, octree_file, refuse_existing
+from scan2terrain.steps import (
+    PointColumns,
+    ScanProgress,
+    grid_options,
+    new_tree,
+    octree_file,
+    refuse_existing,
+)
 from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result
 
@@ -130,14 +137,15 @@ def bag2world(
             # What was read first, then what the writer said (tiles, Classic left out...).
             result.notes[:0] = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
             return result
-        tree, ingest = bag_octree(bag, cfg, plan, progress)
+        columns = _point_columns(cfg, cast=cfg.scans.insert != "endpoints")
+        tree, ingest = bag_octree(bag, cfg, plan, progress, columns)
     keys, occupied = tree.occupied_and_free()
     resolution = tree.resolution
     del tree  # its store is not needed for the world: free it first
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
-            overwrite=overwrite, extra=extra, start=ingest.start,
+            overwrite=overwrite, extra=extra, start=ingest.start, columns=columns,
         )  # fmt: skip
     result.notes[:0] = ingest.notes
     return result
@@ -168,9 +176,14 @@ def _trajectory_folder(
 
 
 def bag_octree(
-    bag: Bag, cfg: Config, plan: BagPlan, progress: Progress | None = None
+    bag: Bag,
+    cfg: Config,
+    plan: BagPlan,
+    progress: Progress | None = None,
+    columns: PointColumns | None = None,
 ) -> tuple[VoxelOctree, Ingest]:
-    """Every posed scan of the plan inserted into a new octree."""
+    """Every posed scan of the plan inserted into a new octree (and its hits into
+    ``columns``, the points' column statistics, when given)."""
     from scan2terrain.readers.scans import posed_scans
     from scan2terrain.types import ScanCounts
 
@@ -185,13 +198,17 @@ def bag_octree(
     for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
         if start is None:
             start = start_of(scan)
-        if batch is not None:
-            try:
-                batch.add(hits_of(scan))
-            except InputError as exc:
-                raise InputError(bag.path, exc.problem) from exc
-        else:
+        if batch is None:
             _insert(tree, scan, bag.path)
+        if batch is not None or columns is not None:
+            hits = hits_of(scan)
+            if batch is not None:
+                try:
+                    batch.add(hits)
+                except InputError as exc:
+                    raise InputError(bag.path, exc.problem) from exc
+            if columns is not None:
+                columns.add(hits)
         counts.inserted += 1
         counts.points += len(scan.points)
         if progress is not None:
@@ -321,8 +338,11 @@ def read_clouds(
     points = [c.points for c in clouds]
     origin = np.zeros(3)
     if local:
-        lo = np.min([p.min(axis=0) for p in points], axis=0)
-        hi = np.max([p.max(axis=0) for p in points], axis=0)
+        from scan2terrain.commands.stream import cloud_bounds
+
+        # The bounds the streamed path knows before reading a point (a LAS/LAZ header's, of
+        # every class): the same origin, so the same coordinates, on both paths.
+        lo, hi, _ = cloud_bounds(files, points)
         origin = local_origin(lo, hi, cfg.scans.local_origin, notes)
     return Clouds([p - origin for p in points], origin, notes, [c.colours for c in clouds])
 
@@ -398,10 +418,12 @@ def cloud2world(
     if cfg.octree.resolution is None:
         from scan2terrain.commands.stream import cloud_bounds
 
-        lo, hi, n = cloud_bounds(files, [c + origin for c in clouds])
+        lo, hi, n = cloud_bounds(files, clouds, offset=origin)
         cfg = _cloud_resolution(cfg, lo, hi, n, notes)
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
+    raycast = cfg.scans.insert == "raycast"
+    columns = _point_columns(cfg, cast=raycast)
     outside: dict[Path, int] = {}
     colours = None
     if any(c is not None for c in rgb):
@@ -409,9 +431,11 @@ def cloud2world(
 
         colours = VoxelColours(tree.resolution)
     for path, local, pts_rgb in zip(files, clouds, rgb, strict=True):
-        pts = sensor.apply(local) if cfg.scans.insert == "raycast" else local
+        pts = sensor.apply(local) if raycast else local
+        if columns is not None:  # added on another thread while the octree takes them
+            columns.add(_cloud_hits(pts, sensor.translation, cfg) if raycast else pts)
         try:
-            if cfg.scans.insert == "raycast":
+            if raycast:
                 stats = tree.insert_scan(pts, sensor.translation, max_range=cfg.octree.max_range)
             else:
                 stats = tree.insert_endpoints(pts)
@@ -442,10 +466,31 @@ def cloud2world(
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=Path(files[0]), out=out, cfg=cfg,
-            overwrite=overwrite, extra=extra, colours=colours,
+            overwrite=overwrite, extra=extra, colours=colours, columns=columns,
         )  # fmt: skip
     result.notes[:0] = notes
     return result
+
+
+def _point_columns(cfg: Config, *, cast: bool) -> PointColumns | None:
+    """For a height grid: the points' column statistics, gathered beside the octree."""
+    if cfg.octree.grid != "height" or cfg.world.geometry == "voxels":
+        return None
+    from scan2terrain.commands.stream import lattice_for
+
+    return PointColumns(lattice_for(cfg), cast=cast)
+
+
+def _cloud_hits(
+    points: NDArray[np.float64], sensor: NDArray[np.float64], cfg: Config
+) -> NDArray[np.float64]:
+    """A ray-cast cloud's hits: its points within ``octree.max_range`` of the sensor."""
+    reach = cfg.octree.max_range
+    if reach <= 0:
+        return points
+    rel = points - sensor
+    near: NDArray[np.float64] = points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
+    return near
 
 
 def _cloud_resolution(

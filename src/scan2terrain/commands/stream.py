@@ -119,11 +119,14 @@ def lattice_for(cfg: Config) -> Lattice:
 
 
 def cloud_bounds(
-    files: Sequence[Path | str], points: Sequence[NDArray[np.float64]] | None = None
+    files: Sequence[Path | str],
+    points: Sequence[NDArray[np.float64]] | None = None,
+    offset: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
     """The bounds and the number of points of cloud files as both paths know them before any
     grid: a LAS/LAZ header's, else the points' (``points``, one array per file, when they are
-    read already)."""
+    read already; plus ``offset`` when they are less it, a local origin: the bounds of
+    ``points + offset`` exactly, rounding being monotonic, without adding it to every point)."""
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import LAS_SUFFIXES, las_info, url_suffix
 
@@ -138,7 +141,10 @@ def cloud_bounds(
             continue
         p = points[i] if points is not None else read_cloud(Path(f)).points
         if len(p):
-            lo, hi = np.minimum(lo, p.min(axis=0)), np.maximum(hi, p.max(axis=0))
+            plo, phi = p.min(axis=0), p.max(axis=0)
+            if offset is not None:
+                plo, phi = plo + offset, phi + offset
+            lo, hi = np.minimum(lo, plo), np.maximum(hi, phi)
             n += len(p)
     return lo, hi, n
 
@@ -454,25 +460,25 @@ def streamed_world(
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
     from scan2terrain.commands.maps import height_world, occupancy_world
-    from scan2terrain.steps import fill_holes, refuse_large_grid, solid_hint
+    from scan2terrain.steps import point_heights, refuse_large_grid, solid_hint
 
     tiles = streamed.tiles
-    if tiles.points == 0:
-        raise InputError(source, "no point in the z band: nothing to make a grid of")
-    rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
-    refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
     counted = tiles.points
     # The grid holds what the world needs: the tiles' records go before the world is made.
     if cfg.octree.grid == "occupancy":
+        if tiles.points == 0:
+            raise InputError(source, "no point in the z band: nothing to make a grid of")
+        rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
+        res = tiles.lattice.resolution
+        refuse_large_grid(source, "points", rows, cols, resolution=res, cfg=cfg)
         grid = tiles.occupancy()
         tiles.clear()
         hint = solid_hint(grid)
         result = occupancy_world(grid, source, out, cfg, overwrite=overwrite, start=streamed.start)
         result.notes += [hint] if hint else []
-    else:
-        heights = tiles.heights(cfg.octree.height_stat)
-        tiles.clear()
-        heights = fill_holes(heights, cfg)
+    else:  # the octree path's heights come from the same step (commands/voxels.py)
+        heights, notes = point_heights(tiles, cfg, source)
         result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
+        result.notes += notes
     result.notes[:0] = [*streamed.notes, f"points counted: {counted:,}"]
     return result

@@ -18,6 +18,7 @@ from scan2terrain.steps import (
     grid_options,
     new_tree,
     octree_file,
+    point_heights,
     refuse_existing,
     refuse_large_grid,
     solid_hint,
@@ -30,6 +31,7 @@ from scan2terrain.world.folder import Result
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
+    from scan2terrain.steps import PointColumns
     from scan2terrain.world.folder import ExtraFiles
 
 
@@ -92,11 +94,15 @@ def voxels_world(
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,
+    columns: PointColumns | None = None,
 ) -> Result:
     """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
     projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
     centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_world`;
-    ``runs``: each key starts a vertical run of that many voxels (pruned leaves)."""
+    ``runs``: each key starts a vertical run of that many voxels (pruned leaves).
+    ``columns``: the column statistics of the points the voxels were made from; a height
+    grid's heights are then theirs (the points' z, as the streamed path takes them), not the
+    voxel centres (only an OctoMap file, which has no points, needs those)."""
     from scan2terrain.grids import projection
     from scan2terrain.grids.occupied import occupied_voxels
 
@@ -133,6 +139,22 @@ def voxels_world(
             grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start
         )
         result.notes += [hint] if hint else []
+        return result
+    if columns is not None:
+        tiles = columns.finish()
+        # End points occupy every voxel they hit: their columns are the tiles' own (the same
+        # cell rule), and the heights those the streamed path gets. Ray-cast points may have
+        # had voxels cleared since: then the octree bounds them.
+        bounds = None
+        if columns.cast:
+            bounds = projection.column_stats(
+                keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
+            )
+        heights, notes = point_heights(tiles, cfg, source, occupied=bounds)
+        result = height_world(
+            heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start
+        )
+        result.notes += notes
         return result
     stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs)
     if not stats.known.any():

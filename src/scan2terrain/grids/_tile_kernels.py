@@ -61,6 +61,10 @@ def flag_tiles(points, inv_res, band, shift, tr0, tc0, flags):
             flags[tr - tr0, tc - tc0] = 1
 
 
+#: Points bucketed by tile at a time in :func:`accumulate` (4 buffers of 512 KB).
+_BUCKET = 1 << 16
+
+
 @nb.njit(**_JIT)
 def accumulate(points, inv_res, band, shift, sum_scale, tr0, tc0, slots, cells, cells32):
     """Add every usable point to its cell record ``cells[tile row, cell]``: count (int64 0),
@@ -68,25 +72,59 @@ def accumulate(points, inv_res, band, shift, sum_scale, tr0, tc0, slots, cells, 
     words 4 and 5 of ``cells32``, the same memory). ``slots[tr - tr0, tc - tc0]`` is the row of
     the point's tile. min/max are only meaningful where count > 0: a cell's first point sets
     them, so the storage needs no fill. One 24-byte record per cell keeps a point's updates in
-    one cache line (four separate arrays were 4x slower on unordered points)."""
+    one cache line (four separate arrays were 4x slower on unordered points).
+
+    The points go ``_BUCKET`` at a time: their record indices and z first, then sorted by
+    tile (a counting sort), then added tile by tile, so a tile's records (1.5 MB at 256^2
+    cells) stay in cache while its points come. 10 M points in random order over 1540^2 cells:
+    0.44 s, not 0.71 s added one by one; sorted by y 0.28 s, not 0.29. Sums, min and max do
+    not depend on the order: the records are the same."""
     mask = (np.int64(1) << shift) - 1
-    for i in range(points.shape[0]):
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        if not _usable(x, y, z, band):
-            continue
-        row = np.int64(_cell(y, inv_res))
-        col = np.int64(_cell(x, inv_res))
-        s = slots[(row >> shift) - tr0, (col >> shift) - tc0]
-        c = ((row & mask) << shift) | (col & mask)
-        z32 = np.float32(z)
-        n = cells[s, c, 0]
-        if n == 0:
-            cells32[s, c, 4] = z32
-            cells32[s, c, 5] = z32
-        else:
-            if z32 < cells32[s, c, 4]:
-                cells32[s, c, 4] = z32
-            if z32 > cells32[s, c, 5]:
-                cells32[s, c, 5] = z32
-        cells[s, c, 0] = n + 1
-        cells[s, c, 1] += np.int64(math.floor(z * sum_scale + 0.5))
+    t2 = np.int64(1) << (2 * shift)
+    flat = cells.reshape(-1, 3)
+    flat32 = cells32.reshape(-1, 6)
+    n_slots = cells.shape[0]
+    key = np.empty(_BUCKET, dtype=np.int64)
+    zs = np.empty(_BUCKET, dtype=np.float64)
+    by_tile = np.empty(_BUCKET, dtype=np.int64)
+    z_by_tile = np.empty(_BUCKET, dtype=np.float64)
+    starts = np.empty(n_slots + 1, dtype=np.int64)
+    n = points.shape[0]
+    for first in range(0, n, _BUCKET):
+        m = 0
+        for i in range(first, min(n, first + _BUCKET)):
+            x, y, z = points[i, 0], points[i, 1], points[i, 2]
+            if not _usable(x, y, z, band):
+                continue
+            row = np.int64(_cell(y, inv_res))
+            col = np.int64(_cell(x, inv_res))
+            s = slots[(row >> shift) - tr0, (col >> shift) - tc0]
+            key[m] = s * t2 + (((row & mask) << shift) | (col & mask))
+            zs[m] = z
+            m += 1
+        starts[:] = 0
+        for j in range(m):
+            starts[key[j] // t2 + 1] += 1
+        for s in range(n_slots):
+            starts[s + 1] += starts[s]
+        for j in range(m):
+            s = key[j] // t2
+            at = starts[s]
+            starts[s] = at + 1
+            by_tile[at] = key[j]
+            z_by_tile[at] = zs[j]
+        for j in range(m):
+            k = by_tile[j]
+            z = z_by_tile[j]
+            z32 = np.float32(z)
+            count = flat[k, 0]
+            if count == 0:
+                flat32[k, 4] = z32
+                flat32[k, 5] = z32
+            else:
+                if z32 < flat32[k, 4]:
+                    flat32[k, 4] = z32
+                if z32 > flat32[k, 5]:
+                    flat32[k, 5] = z32
+            flat[k, 0] = count + 1
+            flat[k, 1] += np.int64(math.floor(z * sum_scale + 0.5))

@@ -324,16 +324,78 @@ class TileSet:
         r = self.lattice.resolution
         return Pose2D(box[1] * r, box[0] * r, 0.0)
 
-    def heights(self, stat: str) -> HeightGrid:
+    def heights(self, stat: str, occupied: ColumnStats | None = None) -> HeightGrid:
         """One statistic of the points' z per cell (``"max"``, ``"min"`` or ``"mean"``, metres,
         float32, NaN where no point) over the bounding box of the cells with a point; the same
-        values as :meth:`column_stats`, without its other grids (5 bytes a cell, not 17)."""
+        values as :meth:`column_stats`, without its other grids (5 bytes a cell, not 17).
+
+        ``occupied``: the occupied voxels' column statistics of an octree on the same lattice
+        (:func:`~scan2terrain.grids.projection.column_stats`, any frame), for points that were
+        ray-cast, where later rays may have cleared some of their voxels: only columns with an
+        occupied voxel are known, and in a column with points beyond its occupied voxels the
+        height is kept between the outer faces of those voxels (the octree says what is
+        there, the points say where exactly). Points inserted as end points occupy every voxel
+        they hit (the same cell rule), so it changes nothing for them."""
         if stat not in STATS:
             raise ValueError(f"stat must be one of {STATS}, got {stat!r}")
         box = self._known_box()
         heights = self._paste(box, _STAT[stat], np.float32, np.nan)
         known = self._paste(box, _known, np.bool_, False)
+        if occupied is not None:
+            self._within(heights, known, box, occupied)
         return HeightGrid(heights, known, self.lattice.resolution, self.origin_of(box))
+
+    def _within(
+        self,
+        heights: NDArray[np.float32],
+        known: NDArray[np.bool_],
+        box: tuple[int, int, int, int],
+        occupied: ColumnStats,
+    ) -> None:
+        """:meth:`heights` bounded by the octree's occupied voxels, in place."""
+        r = self.lattice.resolution
+        if not math.isclose(occupied.resolution, r, rel_tol=1e-12):
+            raise ValueError(f"occupied has {occupied.resolution} m cells, the tiles {r} m")
+        inv = 1.0 / r
+        # The octree's frame in the tiles' one: its origin is on a voxel edge.
+        r0 = round(occupied.origin.y * inv) - box[0]
+        c0 = round(occupied.origin.x * inv) - box[1]
+        h, w = heights.shape
+        rows, cols = occupied.shape
+        a0, a1 = max(r0, 0), min(r0 + rows, h)
+        b0, b1 = max(c0, 0), min(c0 + cols, w)
+        inside = np.zeros_like(known)
+        lo = np.zeros((h, w), dtype=np.float64)  # z cells of the lowest and highest voxel
+        hi = np.zeros((h, w), dtype=np.float64)
+        if a0 < a1 and b0 < b1:
+            src = np.s_[a0 - r0 : a1 - r0, b0 - c0 : b1 - c0]
+            inside[a0:a1, b0:b1] = occupied.known[src]
+            # Voxel centres back to cells (exact: a centre is half a cell from either edge).
+            lo[a0:a1, b0:b1] = np.floor(occupied.min_z[src].astype(np.float64) * inv)
+            hi[a0:a1, b0:b1] = np.floor(occupied.max_z[src].astype(np.float64) * inv)
+        known &= inside
+        # Columns whose highest or lowest point lies in a voxel the octree does not hold
+        # occupied: the keys of real float32 points, as the octree keyed them (a mean is no
+        # point: its integer sum may sit a hair past a face its points are within).
+        top = self._paste(box, _STAT["max"], np.float32, np.nan).astype(np.float64)
+        bottom = self._paste(box, _STAT["min"], np.float32, np.nan).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            past = known & ((np.floor(top * inv) > hi) | (np.floor(bottom * inv) < lo))
+        heights[past] = np.clip(heights[past], lo[past] * r, (hi[past] + 1) * r)
+        heights[~known] = np.nan
+
+    def cell_spreads(self) -> NDArray[np.float32]:
+        """The z spread (max - min, metres) of every cell holding two points or more, in no
+        particular order: what one height per cell leaves out."""
+        t2 = self.lattice.tile**2
+        parts = [np.zeros(0, dtype=np.float32)]
+        for s in range(len(self.index)):  # a tile at a time: its temporaries only
+            records = self.cells[s].reshape(t2, 3)
+            two = records[:, 0] >= 2
+            if two.any():
+                z = np.ascontiguousarray(records[two, 2]).view(np.float32).reshape(-1, 2)
+                parts.append(z[:, 1] - z[:, 0])
+        return np.concatenate(parts)
 
     def column_stats(self) -> ColumnStats:
         """The merged grid as :class:`ColumnStats` over the bounding box of the cells with a

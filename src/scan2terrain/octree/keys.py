@@ -35,3 +35,15 @@ def coord_cell(coord: float, inv_res: float) -> int:
     """
     cell: int = math.floor(np.float64(np.float32(coord)) * inv_res)
     return cell
+
+
+def in_key_range(points: NDArray[np.floating], resolution: float) -> NDArray[np.bool_]:
+    """Which points (N, 3) the octree holds: every coordinate's cell (:func:`coord_cell`) within
+    the key range, ``-KEY_OFFSET <= cell < KEY_OFFSET`` (OctoMap's ``coordToKeyChecked``);
+    NaN and inf are not. bool (N,)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        cells = np.floor(
+            np.asarray(points, dtype=np.float32).astype(np.float64) * (1.0 / resolution)
+        )
+        inside = (cells >= -KEY_OFFSET) & (cells < KEY_OFFSET)
+    return np.asarray(inside.all(axis=1))
