@@ -123,7 +123,7 @@ def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Pat
         )
         assert r.returncode == 2, r.stderr[-500:]
         (line,) = r.stderr.strip().splitlines()
-        assert "over max_memory 8192 MiB: choose --resolution 0.13 or coarser" in line, line
+        assert "over --max-memory 8192 MiB: choose --resolution 0.13 or coarser" in line, line
         assert "raise --max-memory" in line
         assert not (tmp_path / "w").exists()
     r = run_limited(
@@ -131,7 +131,7 @@ def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Pat
          "--max-memory", "1000"],
         tmp_path,
     )  # fmt: skip
-    assert r.returncode == 2 and "over max_memory 1000 MiB: choose --resolution 0.36" in r.stderr
+    assert r.returncode == 2 and "over --max-memory 1000 MiB: choose --resolution 0.36" in r.stderr
     r = run_limited(
         ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.36",
          "--max-memory", "1000", "-q"],
@@ -201,7 +201,7 @@ def test_an_octree_over_the_memory_budget_is_refused_not_a_memory_error(tmp_path
     )
     assert r.returncode == 2, r.stderr[-500:]
     (line,) = r.stderr.strip().splitlines()
-    assert str(scan) in line and "over max_memory 100 MiB" in line, line
+    assert str(scan) in line and "over --max-memory 100 MiB" in line, line
     assert "--resolution" in line and "--max-range" in line and "raise --max-memory" in line
     assert not out.exists()
     r = run_limited(

@@ -414,6 +414,7 @@ def cloud2world(
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
     voxels = cfg.world.geometry == "voxels"
     clouds, origin, notes, rgb = read_clouds([Path(f) for f in files], cfg, colours=voxels)
+    asked = cfg.scans.local_origin  # before the origin used is recorded
     cfg = georeferenced(cfg, origin, files, notes)
     if cfg.octree.resolution is None:
         from scan2terrain.commands.stream import cloud_bounds
@@ -454,8 +455,8 @@ def cloud2world(
             hint = (
                 "the files may be in different coordinate systems (one local origin serves"
                 " all); convert them to one, or use a coarser --resolution"
-                if cfg.scans.local_origin == "auto"
-                else "set scans.local_origin: auto, or use a coarser --resolution"
+                if asked == "auto"
+                else "use --local-origin auto, or a coarser --resolution"
             )
             raise InputError(path, f"all points lie {span}: {hint}")
         notes.append(
