@@ -41,6 +41,9 @@ import pytest
 
 from tests.mutation_runner import Case, Outcome, run_cases
 
+#: Minutes of forked runs: `pytest -m 'not slow'` leaves it out, CI runs it.
+pytestmark = pytest.mark.slow
+
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: Address space a child may take. A normal run of any case below peaks at about 200 MB of
 #: resident memory and runs within 1.2 GiB of address space (Open3D, numba and the octree's

@@ -28,6 +28,9 @@ from tests.physics_harness import (
     spawn_robot,
 )
 
+#: The physics harness against analytic cases: `pytest -m 'not slow'` leaves it out, CI runs it.
+pytestmark = pytest.mark.slow
+
 HEAD = """<?xml version="1.0"?>
 <sdf version="1.9">
   <world name="test">

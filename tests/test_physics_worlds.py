@@ -45,6 +45,9 @@ from tests.physics_harness import (
 )
 from tests.readers.test_dem import SFBAY
 
+#: Every world driven in gz-sim's physics: `pytest -m 'not slow'` leaves it out, CI runs it.
+pytestmark = pytest.mark.slow
+
 H = 2.0  # wall height (the default --height)
 RADIUS = 0.05  # probe spheres
 GAP = 0.3  # the robot starts this far before a wall face

@@ -69,6 +69,7 @@ def test_speckle_maps_earcut_got_wrong(seed: int) -> None:
     check_solid(extrude(polys, 2.0), polys, 2.0, 0.0)
 
 
+@pytest.mark.slow
 def test_rotated_and_simplified_speckle() -> None:
     polys = trace(speckle_map(EARCUT_FAILED[0]), 0.05, Pose2D(3.0, 1.0, 0.7))
     check_caps(polys)
@@ -76,6 +77,7 @@ def test_rotated_and_simplified_speckle() -> None:
     check_caps(straight)
 
 
+@pytest.mark.slow
 def test_many_holes_are_tiled(monkeypatch: pytest.MonkeyPatch) -> None:
     """A 600 x 600 speckle map's polygon (about 30,000 holes, 200,000 points) reaches earcut
     only in tiles of about ``TILE_POINTS`` points: the work of each earcut call is bounded,
