@@ -120,7 +120,9 @@ def test_a_laz_files_own_crs_is_used(tmp_path: Path, capsys: pytest.CaptureFixtu
 
     laz = FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz"
     out = tmp_path / "w"
-    run(capsys, "cloud2world", str(laz), "-o", str(out), "--resolution", "2")
+    printed = run(capsys, "cloud2world", str(laz), "-o", str(out), "--resolution", "2")
+    # Its CRS is in international feet: the world is not in metres, and the report says so.
+    assert "the CRS's unit is the foot (0.3048 m)" in printed and "3.281 times too large" in printed
     cfg = yaml.safe_load((out / "scan2terrain.yaml").read_text())
     assert cfg["scans"]["crs"]  # the file's Lambert conformal conic (Oregon, feet)
     sph = probe_spherical(out / "world_gz.sdf", [out / "models"], tmp_path)

@@ -111,9 +111,16 @@ def georeferenced(
     sc = cfg.scans
     crs = sc.crs if sc.crs is not None else file_crs(paths, notes)
     if crs is not None:
-        parse_crs(crs)
+        axis = parse_crs(crs).axis_info[0]
         if sc.crs is None:
             notes.append(f"CRS {crs_name(crs)}, from the file(s): worlds placed on the earth")
+        if abs(axis.unit_conversion_factor - 1.0) > 1e-9:
+            notes.append(
+                f"warning: the CRS's unit is the {axis.unit_name} ({axis.unit_conversion_factor:g}"
+                " m), and the world is built in the clouds' own numbers as metres: it is"
+                f" {1 / axis.unit_conversion_factor:.4g} times too large (convert the clouds to a"
+                " metric CRS first, e.g. pdal translate with filters.reprojection)"
+            )
     local: LocalOrigin | list[float] = sc.local_origin
     if np.any(origin != 0) or isinstance(local, list):
         local = [float(v) for v in origin]
