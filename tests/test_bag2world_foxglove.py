@@ -193,6 +193,8 @@ def test_foxglove_laserscan_without_max_range_says_its_no_return_readings_clear_
     assert code == 0 and note in stdout, err
     code, stdout, err = run(capsys, "inspect", bag, *STATIONARY)  # a ROS scan has its range_max
     assert code == 0 and "no range_max" not in stdout, err
+    code, stdout, err = run(capsys, "inspect", mcap, *STATIONARY, "--max-range", "8")
+    assert code == 0 and note not in stdout, err  # inspect takes it as bag2world does
 
 
 @pytest.mark.parametrize("case", ["protobuf", "json"])

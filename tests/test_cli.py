@@ -472,3 +472,12 @@ def test_image2world_refuses_a_dem_and_names_dem2world(tmp_path: Path, name: str
     (line,) = r.stderr.splitlines()
     assert str(dem) in line and "elevation raster" in line and "dem2world" in line
     assert leftovers(tmp_path) == []
+
+
+def test_python_dash_m_runs_the_command() -> None:
+    """`python -m scan2terrain` is the scan2terrain command (as `python -m scan2terrain.cli`)."""
+    for module in ("scan2terrain", "scan2terrain.cli"):
+        r = subprocess.run(
+            [sys.executable, "-m", module, "map2wrld"], capture_output=True, text=True, check=False
+        )
+        assert r.returncode == 2 and "did you mean 'map2world'?" in r.stderr, r.stderr

@@ -355,6 +355,12 @@ def bag_commands(sub: Any) -> None:
     n.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
     n.add_argument("--config", type=Path, help="YAML config file; flags override it")
     scan_options(n, bag=True)
+    n.add_argument(
+        "--max-range",
+        type=float,
+        dest="octree.max_range",
+        help="metres: as bag2world's (a Foxglove LaserScan's no-return readings clear this far)",
+    )
     n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
