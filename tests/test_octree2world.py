@@ -297,3 +297,33 @@ def test_a_failing_octree_file_fails_the_world_and_writes_nothing(tmp_path: Path
         )  # fmt: skip
     assert not (tmp_path / "w").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
+
+
+def test_a_scan_files_height_grid_is_its_points_as_for_clouds(tmp_path: Path) -> None:
+    """Issue 25 item 1, every path: octree2world on an OctoMap scan file takes a height grid's
+    heights from its points, as cloud2world does from the same points ray-cast from the same
+    pose (it took voxel centres: heights in steps of the resolution)."""
+    from PIL import Image
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-6, 6, size=(20_000, 2))
+    z = 0.4 * np.sin(xy[:, 0] / 2) + 0.05 * xy[:, 1]  # smooth ground, 1.7 m of relief
+    sensor = np.array([0.0, 0.0, 2.0])
+    local = np.column_stack([xy, z]) - sensor  # the sensor frame: identity rotation
+    scan = tmp_path / "ground.dat"
+    rows = "\n".join(" ".join(repr(float(v)) for v in p) for p in local)
+    scan.write_text(f"NODE 0 0 2 0 0 0\n{rows}\n")
+    cloud = tmp_path / "ground.xyz"
+    cloud.write_text(rows + "\n")
+    common = ["--grid", "height", "--resolution", "0.25", "--simulator", "gz", "-q"]
+    assert main(["octree2world", str(scan), "-o", str(tmp_path / "a"), *common]) == 0
+    assert main(["cloud2world", str(cloud), "-o", str(tmp_path / "b"), *common,
+                 "--insert", "raycast", "--pose", "0", "0", "2", "0", "0", "0"]) == 0  # fmt: skip
+    pngs = [
+        np.asarray(
+            Image.open(next((tmp_path / w).glob("models/*/materials/textures/heightmap.png")))
+        )
+        for w in ("a", "b")
+    ]
+    np.testing.assert_array_equal(pngs[0], pngs[1])
+    assert len(np.unique(pngs[0])) > 100  # smooth, not 7 voxel layers

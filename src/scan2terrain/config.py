@@ -171,7 +171,7 @@ class OctreeConfig:
     #: occupancy (octomap_server's projection) | height (2.5D: a column statistic of occupied z).
     grid: GridKind = "occupancy"
     #: max | min | mean of a column's heights (grid: height): its points' z where the grid is
-    #: made from points (clouds, bags), its occupied voxel centres from an OctoMap file.
+    #: made from points (clouds, bags, OctoMap scan files), voxel centres from a .bt file.
     height_stat: HeightStat = "max"
     #: none | nearest | idw: how empty columns of a height grid are filled.
     fill: Fill = "nearest"

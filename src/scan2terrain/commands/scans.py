@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.commands.maps import height_world, occupancy_world
-from scan2terrain.commands.voxels import voxels_world
+from scan2terrain.commands.voxels import cast_hits, point_columns, voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
@@ -137,7 +137,7 @@ def bag2world(
             # What was read first, then what the writer said (tiles, Classic left out...).
             result.notes[:0] = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
             return result
-        columns = _point_columns(cfg, cast=cfg.scans.insert != "endpoints")
+        columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
         tree, ingest = bag_octree(bag, cfg, plan, progress, columns)
     keys, occupied = tree.occupied_and_free()
     resolution = tree.resolution
@@ -424,7 +424,7 @@ def cloud2world(
     tree = new_tree(cfg)
     sensor = _fixed_pose(cfg)
     raycast = cfg.scans.insert == "raycast"
-    columns = _point_columns(cfg, cast=raycast)
+    columns = point_columns(cfg, cast=raycast)
     outside: dict[Path, int] = {}
     colours = None
     if any(c is not None for c in rgb):
@@ -434,7 +434,7 @@ def cloud2world(
     for path, local, pts_rgb in zip(files, clouds, rgb, strict=True):
         pts = sensor.apply(local) if raycast else local
         if columns is not None:  # added on another thread while the octree takes them
-            columns.add(_cloud_hits(pts, sensor.translation, cfg) if raycast else pts)
+            columns.add(cast_hits(pts, sensor.translation, cfg) if raycast else pts)
         try:
             if raycast:
                 stats = tree.insert_scan(pts, sensor.translation, max_range=cfg.octree.max_range)
@@ -471,27 +471,6 @@ def cloud2world(
         )  # fmt: skip
     result.notes[:0] = notes
     return result
-
-
-def _point_columns(cfg: Config, *, cast: bool) -> PointColumns | None:
-    """For a height grid: the points' column statistics, gathered beside the octree."""
-    if cfg.octree.grid != "height" or cfg.world.geometry == "voxels":
-        return None
-    from scan2terrain.commands.stream import lattice_for
-
-    return PointColumns(lattice_for(cfg), cast=cast)
-
-
-def _cloud_hits(
-    points: NDArray[np.float64], sensor: NDArray[np.float64], cfg: Config
-) -> NDArray[np.float64]:
-    """A ray-cast cloud's hits: its points within ``octree.max_range`` of the sensor."""
-    reach = cfg.octree.max_range
-    if reach <= 0:
-        return points
-    rel = points - sensor
-    near: NDArray[np.float64] = points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
-    return near
 
 
 def _cloud_resolution(

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from scan2terrain.config import Config
 from scan2terrain.errors import InputError
 from scan2terrain.steps import (
+    PointColumns,
     fill_holes,
     grid_options,
     new_tree,
@@ -31,7 +32,6 @@ from scan2terrain.world.folder import Result
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
-    from scan2terrain.steps import PointColumns
     from scan2terrain.world.folder import ExtraFiles
 
 
@@ -58,14 +58,15 @@ def octree2world(
     grid_options(cfg)
     source = Path(source)
     if is_scan_file(source):
-        tree = build_octree(source, cfg, progress)
+        columns = point_columns(cfg, cast=True)  # heights from the points, as for clouds
+        tree = build_octree(source, cfg, progress, columns)
         keys, occupied = tree.occupied_and_free()
         resolution = tree.resolution
         del tree  # its store is not needed for the world: free it first
         with octree_file(resolution, keys, occupied) as extra:
             return voxels_world(
                 keys, occupied, resolution, source=source, out=out, cfg=cfg,
-                overwrite=overwrite, extra=extra,
+                overwrite=overwrite, extra=extra, columns=columns,
             )  # fmt: skip
     from scan2terrain.grids.projection import leaf_columns
 
@@ -163,8 +164,36 @@ def voxels_world(
     return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start)
 
 
-def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None) -> VoxelOctree:
-    """Ray-cast every scan of an OctoMap text scan file into a new octree."""
+def point_columns(cfg: Config, *, cast: bool) -> PointColumns | None:
+    """For a height grid: the points' column statistics, gathered beside the octree
+    (``cast``: the points are ray-cast; see :class:`~scan2terrain.steps.PointColumns`)."""
+    if cfg.octree.grid != "height" or cfg.world.geometry == "voxels":
+        return None
+    from scan2terrain.commands.stream import lattice_for
+
+    return PointColumns(lattice_for(cfg), cast=cast)
+
+
+def cast_hits(
+    points: NDArray[np.float64], sensor: NDArray[np.float64], cfg: Config
+) -> NDArray[np.float64]:
+    """A ray-cast scan's hits: its points within ``octree.max_range`` of the sensor."""
+    reach = cfg.octree.max_range
+    if reach <= 0:
+        return points
+    rel = points - sensor
+    near: NDArray[np.float64] = points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
+    return near
+
+
+def build_octree(
+    source: Path,
+    cfg: Config,
+    progress: ScanProgress | None = None,
+    columns: PointColumns | None = None,
+) -> VoxelOctree:
+    """Ray-cast every scan of an OctoMap text scan file into a new octree (and its hits into
+    ``columns``, the points' column statistics, when given)."""
     from scan2terrain.readers.octomap_scan import read_scans
     from scan2terrain.types import ScanCounts
 
@@ -176,6 +205,8 @@ def build_octree(source: Path, cfg: Config, progress: ScanProgress | None = None
             tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
         except InputError as exc:
             raise InputError(source, exc.problem) from exc
+        if columns is not None:
+            columns.add(cast_hits(scan.points, scan.origin, cfg))
         counts.messages += 1
         counts.inserted += 1
         counts.points += len(scan.points)
