@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config, octree_resolution, two_digits_up
 from scan2terrain.errors import ConfigError
+from scan2terrain.exporters._numbers import decimal_text
 from scan2terrain.exporters.heightmap import CLASSIC, Heightmap, make_heightmap
 from scan2terrain.exporters.output import OutputDir
 from scan2terrain.exporters.preview import preview_png
@@ -262,6 +263,17 @@ class PointColumns:
         self.tiles.add_points(points)
 
 
+def refuse_tiles_grid(tiles: TileSet, cfg: Config, source: Path) -> None:
+    """Refuse, before the dense grid is allocated, the grid of tiles that hold no point or
+    that :func:`refuse_large_grid` refuses."""
+    from scan2terrain.errors import InputError
+
+    if tiles.points == 0:
+        raise InputError(source, "no point in the z band: nothing to make a grid of")
+    rows, cols = tiles.grid_shape()
+    refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
+
+
 def point_heights(
     tiles: TileSet, cfg: Config, source: Path, *, occupied: ColumnStats | None = None
 ) -> tuple[HeightGrid, list[str]]:
@@ -272,10 +284,7 @@ def point_heights(
     (:func:`relief_note`). The tiles are emptied once the grid is made."""
     from scan2terrain.errors import InputError
 
-    if tiles.points == 0:
-        raise InputError(source, "no point in the z band: nothing to make a grid of")
-    rows, cols = tiles.grid_shape()
-    refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
+    refuse_tiles_grid(tiles, cfg, source)
     heights = tiles.heights(cfg.octree.height_stat, occupied)
     if not heights.known.any():
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
@@ -425,16 +434,10 @@ def grid_options(cfg: Config) -> None:
 def minus(name: str, v: float) -> str:
     """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0;
     ``v`` rounded to the nanometre (28.95, not 28.950000000000003)."""
-    text = shown(abs(v))
+    text = decimal_text(abs(v), 9)
     if text == "0":
         return name
     return f"{name} - {text}" if v > 0 else f"{name} + {text}"
-
-
-def shown(v: float, places: int = 9) -> str:
-    """``v`` with at most ``places`` decimals and no trailing zeros, as a user would type it."""
-    text = f"{v:.{places}f}".rstrip("0").rstrip(".")
-    return "0" if text in ("", "-0") else text
 
 
 def heightmap_options(cfg: Config) -> None:

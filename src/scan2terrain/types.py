@@ -277,6 +277,7 @@ POINT_ATTRIBUTES: dict[str, str] = {
     "blue": "u2",
     "nir": "u2",
 }
+#: A cloud's colour attributes (LAS's and PLY's names), 8 or 16 bits.
 COLOUR_ATTRIBUTES = ("red", "green", "blue")
 
 

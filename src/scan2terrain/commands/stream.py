@@ -460,17 +460,13 @@ def streamed_world(
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
     from scan2terrain.commands.maps import height_world, occupancy_world
-    from scan2terrain.steps import point_heights, refuse_large_grid, solid_hint
+    from scan2terrain.steps import point_heights, refuse_tiles_grid, solid_hint
 
     tiles = streamed.tiles
     counted = tiles.points
     # The grid holds what the world needs: the tiles' records go before the world is made.
     if cfg.octree.grid == "occupancy":
-        if tiles.points == 0:
-            raise InputError(source, "no point in the z band: nothing to make a grid of")
-        rows, cols = tiles.grid_shape()  # sized before the dense grid is allocated
-        res = tiles.lattice.resolution
-        refuse_large_grid(source, "points", rows, cols, resolution=res, cfg=cfg)
+        refuse_tiles_grid(tiles, cfg, source)  # sized before the dense grid is allocated
         grid = tiles.occupancy()
         tiles.clear()
         hint = solid_hint(grid)

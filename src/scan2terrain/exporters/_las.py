@@ -37,7 +37,8 @@ from scan2terrain.types import POINT_ATTRIBUTES, Cloud, LasLayout
 
 #: LAS coordinate resolution of the fallback grid, metres.
 LAS_SCALE = 0.001
-_INT32 = (-(2**31), 2**31 - 1)
+INT32_MAX = 2**31 - 1
+_INT32 = (-(2**31), INT32_MAX)
 #: Byte offset of the LAS header's creation day-of-year and year (two uint16).
 LAS_DATE = slice(90, 94)
 #: Point formats chosen for a cloud, in order of preference (no waveform formats).

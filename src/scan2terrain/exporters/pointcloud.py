@@ -41,17 +41,12 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.exporters._las import las_bytes
+from scan2terrain.exporters._las import INT32_MAX, LAS_DATE, LAS_SCALE, las_bytes
 from scan2terrain.exporters._numbers import float_texts
 from scan2terrain.fileio import atomic_write
 from scan2terrain.types import COLOUR_ATTRIBUTES, Cloud
 
 FORMATS = (".ply", ".pcd", ".xyz", ".csv", ".las", ".laz")
-#: LAS coordinate resolution, metres.
-LAS_SCALE = 0.001
-_INT32_MAX = 2**31 - 1
-#: Byte offset of the LAS header's creation day-of-year and year (two uint16).
-_LAS_DATE = slice(90, 94)
 #: Points formatted per block when writing text.
 _TEXT_BLOCK = 1 << 16
 
@@ -124,7 +119,7 @@ def _las_bytes(points: NDArray[np.float64], *, compress: bool) -> bytes:
     import laspy  # type: ignore[import-untyped]
 
     offsets = np.floor(points.min(axis=0)) if len(points) else np.zeros(3)
-    if len(points) and ((points.max(axis=0) - offsets) / LAS_SCALE > _INT32_MAX - 1).any():
+    if len(points) and ((points.max(axis=0) - offsets) / LAS_SCALE > INT32_MAX - 1).any():
         span = points.max(axis=0) - points.min(axis=0)
         raise ValueError(
             f"points span {span.max():.0f} m, more than LAS can hold at {LAS_SCALE} m (2147 km)"
@@ -138,7 +133,7 @@ def _las_bytes(points: NDArray[np.float64], *, compress: bool) -> bytes:
     out = io.BytesIO()
     las.write(out, do_compress=compress)
     data = bytearray(out.getvalue())
-    data[_LAS_DATE] = bytes(4)  # laspy always stamps today's date; 0 = unknown
+    data[LAS_DATE] = bytes(4)  # laspy always stamps today's date; 0 = unknown
     return bytes(data)
 
 

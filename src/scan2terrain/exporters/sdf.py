@@ -32,6 +32,7 @@ import numpy as np
 from lxml import etree
 from numpy.typing import NDArray
 
+from scan2terrain.exporters._numbers import decimal_text
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap
 from scan2terrain.types import EarthAnchor
 
@@ -238,10 +239,11 @@ def tiled_world_sdf(
         sph = _sub(world, "spherical_coordinates")
         _sub(sph, "surface_model", "EARTH_WGS84")
         _sub(sph, "world_frame_orientation", "ENU")
-        _sub(sph, "latitude_deg", _num(anchor.latitude_deg, 9))
-        _sub(sph, "longitude_deg", _num(anchor.longitude_deg, 9))
-        _sub(sph, "elevation", _num(anchor.elevation, 3))
-        _sub(sph, "heading_deg", _num(anchor.heading_deg, 6))
+        # 1e-9 degrees is 0.1 mm on the ground.
+        _sub(sph, "latitude_deg", decimal_text(anchor.latitude_deg, 9))
+        _sub(sph, "longitude_deg", decimal_text(anchor.longitude_deg, 9))
+        _sub(sph, "elevation", decimal_text(anchor.elevation, 3))
+        _sub(sph, "heading_deg", decimal_text(anchor.heading_deg, 6))
     sun = _sub(world, "light", name="sun", type="directional")
     _sub(sun, "cast_shadows", "true")
     _sub(sun, "pose", "0 0 10 0 0 0")
@@ -542,9 +544,3 @@ def _extend(parent: etree._Element, parts: list[str]) -> None:
 
 def _bytes(root: etree._Element) -> bytes:
     return bytes(etree.tostring(root, pretty_print=True, xml_declaration=True, encoding="UTF-8"))
-
-
-def _num(v: float, places: int) -> str:
-    """``v`` rounded to ``places`` decimals, without trailing zeros (1e-9 degrees: 0.1 mm)."""
-    text = f"{v:.{places}f}".rstrip("0").rstrip(".")
-    return "0" if text in ("", "-0") else text

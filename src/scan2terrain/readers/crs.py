@@ -39,9 +39,8 @@ def parse_crs(text: str, *, what: str = "scans.crs") -> Any:
     return crs
 
 
-def crs_name(text: str) -> str:
-    """A CRS's short name for notes: ``EPSG:32610 (WGS 84 / UTM zone 10N)``."""
-    crs = parse_crs(text)
+def crs_name(crs: Any) -> str:
+    """A (parsed) CRS's short name for notes: ``EPSG:32610 (WGS 84 / UTM zone 10N)``."""
     code = crs.to_authority()
     return f"{':'.join(code)} ({crs.name})" if code else crs.name
 
@@ -52,19 +51,18 @@ def short_form(crs: Any) -> str:
     return ":".join(code) if code else str(crs.to_wkt())
 
 
-def earth_anchor(text: str, x: float, y: float, z: float) -> EarthAnchor:
-    """The WGS 84 position of the CRS point (x, y, z) (z: elevation in the CRS's vertical
-    unit, taken as its horizontal one when it has none), and the heading of the CRS's x axis
-    there: east along the grid turns from true east by the meridian convergence."""
+def earth_anchor(crs: Any, x: float, y: float, z: float) -> EarthAnchor:
+    """The WGS 84 position of the point (x, y, z) of the (parsed) ``crs`` (z: elevation in
+    its vertical unit, taken as its horizontal one when it has none), and the heading of its
+    x axis there: east along the grid turns from true east by the meridian convergence."""
     from pyproj import Geod, Transformer
 
-    crs = parse_crs(text)
     to_wgs84 = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
     lon, lat = to_wgs84.transform(x, y)
     lon2, lat2 = to_wgs84.transform(x + _STEP, y)
     if not all(math.isfinite(v) for v in (lon, lat, lon2, lat2)):
         raise ConfigError(
-            f"scans.crs {crs_name(text)}: the world's origin ({x:.3f}, {y:.3f}) is outside it"
+            f"scans.crs {crs_name(crs)}: the world's origin ({x:.3f}, {y:.3f}) is outside it"
         )
     azimuth, _, metres = Geod(ellps="WGS84").inv(lon, lat, lon2, lat2)
     unit = crs.axis_info[0].unit_conversion_factor  # metres per CRS unit
@@ -111,9 +109,10 @@ def georeferenced(
     sc = cfg.scans
     crs = sc.crs if sc.crs is not None else file_crs(paths, notes)
     if crs is not None:
-        axis = parse_crs(crs).axis_info[0]
+        parsed = parse_crs(crs)
+        axis = parsed.axis_info[0]
         if sc.crs is None:
-            notes.append(f"CRS {crs_name(crs)}, from the file(s): worlds placed on the earth")
+            notes.append(f"CRS {crs_name(parsed)}, from the file(s): worlds placed on the earth")
         if abs(axis.unit_conversion_factor - 1.0) > 1e-9:
             notes.append(
                 f"warning: the CRS's unit is the {axis.unit_name} ({axis.unit_conversion_factor:g}"

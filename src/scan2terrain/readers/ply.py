@@ -30,6 +30,7 @@ from scan2terrain.readers._cloud_common import (
     rgb8,
     stack,
 )
+from scan2terrain.types import COLOUR_ATTRIBUTES
 
 _PLY_TYPES = {
     "char": "i1",
@@ -50,8 +51,8 @@ _PLY_TYPES = {
     "float64": "f8",
 }
 #: The vertex properties that hold a colour (the names Open3D, CloudCompare, PCL and MeshLab
-#: write).
-RGB = ("red", "green", "blue")
+#: write, and a cloud's colour attributes).
+RGB = COLOUR_ATTRIBUTES
 
 
 @dataclass(frozen=True)

@@ -29,11 +29,12 @@ def georeference(
     line += ")" if offset == (0.0, 0.0) and z_offset == 0.0 else ", and this world's offset)"
     if crs is None:
         return line + "; no CRS known (scans.crs).\n", None
-    from scan2terrain.readers.crs import crs_name, earth_anchor
+    from scan2terrain.readers.crs import crs_name, earth_anchor, parse_crs
 
-    anchor = earth_anchor(crs, ox, oy, oz)
+    parsed = parse_crs(crs)
+    anchor = earth_anchor(parsed, ox, oy, oz)
     line += (
-        f"; CRS {crs_name(crs)}: the world origin is at latitude {anchor.latitude_deg:.9f},"
+        f"; CRS {crs_name(parsed)}: the world origin is at latitude {anchor.latitude_deg:.9f},"
         f" longitude {anchor.longitude_deg:.9f}, elevation {anchor.elevation:.3f} m, its x axis"
         f" {anchor.heading_deg:.6f} deg counter-clockwise from east (<spherical_coordinates>;"
         f" the projection's scale there is {anchor.scale:.6f}).\n"
