@@ -736,13 +736,13 @@ def test_lookups_invert_and_chain(tree: tuple[TfBuffer, list[int]], a: str, b: s
 
 
 def test_matrices_to_quaternions_inverts_scipy() -> None:
-    from scan2terrain.readers.poses import _matrices_to_quaternions
+    from scan2terrain.readers.poses import matrices_to_quaternions
 
     rot = Rotation.random(2000, random_state=5)
     q = rot.as_quat()  # xyzw
     q[:4] = np.eye(4)  # 180-degree turns about x, y, z, and the identity: each branch
     q = np.where(q[:, 3:4] < 0, -q, q)
-    got = _matrices_to_quaternions(Rotation.from_quat(q).as_matrix())
+    got = matrices_to_quaternions(Rotation.from_quat(q).as_matrix())
     assert (got[:, 3] >= 0).all()
     # the same rotation (q and -q are one when w = 0)
     dots = np.abs(np.einsum("ij,ij->i", got, q))

@@ -74,7 +74,7 @@ def _quaternions_to_matrices(q: Floats) -> Floats:
     return r
 
 
-def _matrices_to_quaternions(r: Floats) -> Floats:
+def matrices_to_quaternions(r: Floats) -> Floats:
     """Rotation matrices (K, 3, 3) -> unit quaternions (K, 4) xyzw with w >= 0 (Shepperd: each
     from its largest component, so none is taken from a difference of nearly equal terms)."""
     m = np.asarray(r, dtype=np.float64)

@@ -56,7 +56,7 @@ from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
-from scan2terrain.readers.poses import _matrices_to_quaternions, pose6
+from scan2terrain.readers.poses import matrices_to_quaternions, pose6
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
 from scan2terrain.types import HeightGrid, Pose2D, Scan, ScanCounts, Transform, normalise_frame
@@ -258,7 +258,7 @@ def robot_trajectory(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> tuple[PoseTra
     track = PoseTrack(
         times[valid],
         t[valid],
-        _matrices_to_quaternions(r[valid]),
+        matrices_to_quaternions(r[valid]),
         frame_id=fixed,
         child_frame_id=base,
     )
