@@ -255,7 +255,7 @@ def test_failure_midway_leaves_old_output_intact(
     def boom(*a: object, **k: object) -> bytes:
         raise OSError("disk full")
 
-    monkeypatch.setattr("scan2terrain.exporters.sdf.world_sdf", boom)
+    monkeypatch.setattr("scan2terrain.exporters.sdf.tiled_world_sdf", boom)
     code, _, err = run(capsys, "map2world", good, "-o", out, "--overwrite")
     assert code == 1 and "disk full" in err
     assert sorted(p.name for p in out.rglob("*")) == before

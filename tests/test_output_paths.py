@@ -234,7 +234,7 @@ def test_failure_midway_removes_the_parent_folders_it_made(
     def boom(*a: object, **k: object) -> bytes:
         raise OSError("disk full")
 
-    monkeypatch.setattr("scan2terrain.exporters.sdf.world_sdf", boom)
+    monkeypatch.setattr("scan2terrain.exporters.sdf.tiled_world_sdf", boom)
     code = main(["map2world", str(good), "-o", str(tmp_path / "a/b/out")])
     assert code == 1 and "disk full" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
@@ -343,13 +343,13 @@ def test_a_run_stopped_while_writing_says_so_and_leaves_nothing(
 
     good = write_map(tmp_path / "in", np.full((10, 10), 254, np.uint8))
     out = tmp_path / "out"
-    real_world_sdf = __import__("scan2terrain.exporters.sdf", fromlist=["x"]).world_sdf
+    real_world_sdf = __import__("scan2terrain.exporters.sdf", fromlist=["x"]).tiled_world_sdf
 
     def stop_here(*a: object, **k: object) -> bytes:
         os.kill(os.getpid(), getattr(signal, signame))
         return real_world_sdf(*a, **k)  # type: ignore[no-any-return]
 
-    monkeypatch.setattr("scan2terrain.exporters.sdf.world_sdf", stop_here)
+    monkeypatch.setattr("scan2terrain.exporters.sdf.tiled_world_sdf", stop_here)
     before = signal.getsignal(signal.SIGTERM)
     code = main(["map2world", str(good), "-o", str(out)])
     err = capsys.readouterr().err

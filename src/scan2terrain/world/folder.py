@@ -5,7 +5,7 @@ built by adding notes, never by replacing them."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +21,7 @@ from scan2terrain.types import (
     Pose2D,
     Spawn,
 )
+from scan2terrain.world.georef import georeference
 
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 
@@ -163,6 +164,33 @@ def spawn_pose(
         0.0,
         round(spawn.yaw, 3) + 0.0,
     )
+
+
+def sim_world(
+    placement: sdf.Placement,
+    files: dict[str, bytes],
+    *,
+    cfg: Config,
+    comment: str,
+    spawn: Spawn,
+    offset: tuple[float, float] = (0.0, 0.0),
+    z_offset: float = 0.0,
+    placements: Sequence[sdf.Placement] = (),
+) -> SimWorld:
+    """One simulator's share of a world folder, whose frame is the map frame less ``offset``
+    (x, y) and ``z_offset``: its models' ``files``, and the world file that includes
+    ``placements`` (default: ``placement``'s model) with ``comment``, the georeference
+    (:func:`~scan2terrain.world.georef.georeference`) and the spawn pose in that frame; the map
+    YAMLs repeat the comment and the georeference."""
+    where, anchor = georeference(cfg, offset, z_offset)
+    pose = spawn_pose(spawn, offset, z_offset)
+    world = sdf.tiled_world_sdf(
+        list(placements) or [placement],
+        world_name="scan2terrain",
+        comment=comment + where + spawn_comment(spawn, pose),
+        anchor=anchor,
+    )
+    return SimWorld(placement, files, world, offset, comment + where, pose)
 
 
 def spawn_comment(spawn: Spawn, pose: tuple[float, ...]) -> str:

@@ -20,14 +20,11 @@ from scan2terrain.types import (
 from scan2terrain.world.folder import (
     ExtraFiles,
     Result,
-    SimWorld,
     WorldFolder,
     map_notes,
-    spawn_comment,
-    spawn_pose,
+    sim_world,
     write_world_folder,
 )
-from scan2terrain.world.georef import georeference
 from scan2terrain.world.names import model_name_for, terrain_name
 
 
@@ -81,15 +78,12 @@ def write_terrain(
         )
         # Classic keeps the heightmap's 0 at world z = 0 (no pose); gz-sim at z_min.
         z_offset = 0.0 if sim == GZ else hm.z_min
-        pose = spawn_pose(spawn, p.offset, z_offset)
-        where, anchor = georeference(cfg, p.offset, z_offset)
-        world = sdf.world_sdf(
-            p,
-            world_name="scan2terrain",
-            comment=comment + where + spawn_comment(spawn, pose),
-            anchor=anchor,
-        )
-        parts.append(SimWorld(p, files, world, p.offset, comment + where, pose))
+        parts.append(
+            sim_world(
+                p, files, cfg=cfg, comment=comment, spawn=spawn, offset=p.offset,
+                z_offset=z_offset,
+            )
+        )  # fmt: skip
     folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
@@ -161,16 +155,10 @@ def write_tiles(
             )
         )
         placements.append(p)
-    pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
-    where, anchor = georeference(cfg, (0.0, 0.0))
-    world = sdf.tiled_world_sdf(
-        placements,
-        world_name="scan2terrain",
-        comment=world_comment + where + spawn_comment(spawn, pose),
-        anchor=anchor,
-    )
     whole = sdf.Placement(GZ, base, s, (w * r, h * r, tiled.span), (0.0, 0.0))
-    part = SimWorld(whole, files, world, (0.0, 0.0), world_comment + where, pose)
+    part = sim_world(
+        whole, files, cfg=cfg, comment=world_comment, spawn=spawn, placements=placements
+    )
     plan = WorldFolder(source, result, [part], map_out, preview, extra or {})
     return write_world_folder(plan, out, cfg, overwrite=overwrite)
 

@@ -46,14 +46,11 @@ from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Start
 from scan2terrain.world.folder import (
     ExtraFiles,
     Result,
-    SimWorld,
     WorldFolder,
     map_notes,
-    spawn_comment,
-    spawn_pose,
+    sim_world,
     write_world_folder,
 )
-from scan2terrain.world.georef import georeference
 from scan2terrain.world.names import unique_name
 
 if TYPE_CHECKING:
@@ -260,15 +257,7 @@ def voxel_mesh_world(
             p, ground, stems, comment=described, coloured=palette is not None
         )
         model[f"models/{name}/model.config"] = sdf.model_config(p, f"Voxels from {source.name}")
-        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
-        where, anchor = georeference(cfg, (0.0, 0.0))
-        world = sdf.world_sdf(
-            p,
-            world_name="scan2terrain",
-            comment=described + where + spawn_comment(spawn, pose),
-            anchor=anchor,
-        )
-        parts.append(SimWorld(p, model, world, (0.0, 0.0), described + where, pose))
+        parts.append(sim_world(p, model, cfg=cfg, comment=described, spawn=spawn))
     preview = Preview(preview_png(map_out.data, None, occupancy=True), result.preview_label)
     # The projection is in world axes already (yaw 0, on voxel boundaries).
     folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))

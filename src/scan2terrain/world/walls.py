@@ -31,14 +31,11 @@ from scan2terrain.types import (
 from scan2terrain.world.folder import (
     ExtraFiles,
     Result,
-    SimWorld,
     WorldFolder,
     map_notes,
-    spawn_comment,
-    spawn_pose,
+    sim_world,
     write_world_folder,
 )
-from scan2terrain.world.georef import georeference
 from scan2terrain.world.names import unique_name
 
 
@@ -118,15 +115,7 @@ def walls_world(
         files = {f"models/{name}/{rel}": data for rel, data in made.files.items()}
         files[f"models/{name}/model.sdf"] = made.model_sdf(p, described)
         files[f"models/{name}/model.config"] = sdf.model_config(p, f"Walls from {source.name}")
-        pose = spawn_pose(spawn, (0.0, 0.0), 0.0)
-        where, anchor = georeference(cfg, (0.0, 0.0))
-        world = sdf.world_sdf(
-            p,
-            world_name="scan2terrain",
-            comment=described + where + spawn_comment(spawn, pose),
-            anchor=anchor,
-        )
-        parts.append(SimWorld(p, files, world, (0.0, 0.0), described + where, pose))
+        parts.append(sim_world(p, files, cfg=cfg, comment=described, spawn=spawn))
     folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
