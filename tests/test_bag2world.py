@@ -503,6 +503,20 @@ def test_unusable_bag_is_refused_with_one_clear_line(
     assert list(outs.iterdir()) == []
 
 
+def test_refusal_is_whole_however_deep_the_bag_lies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CI's checkout lies deeper than ours: the file's name must not push the problem past
+    the line's cut (the topic list lost its last entry there)."""
+    deep = tmp_path.joinpath(*["a-rather-long-folder-name"] * 12)
+    deep.mkdir(parents=True)
+    bag = deep / NAV2.name
+    bag.symlink_to(NAV2.resolve(), target_is_directory=NAV2.is_dir())
+    code, _, err = run(capsys, "bag2world", bag, "-o", tmp_path / "w")
+    assert code == 2
+    assert err.rstrip("\n").endswith(REFUSED["nav2-zstd"][1]), err
+
+
 def test_gridmap_bag_warns_library_callers() -> None:
     with pytest.warns(BagWarning, match="grid_map_msgs/msg/GridMap"), open_bag(GRIDMAP) as bag:
         assert "/grid_map" in bag.skipped

@@ -114,8 +114,17 @@ def _restore_signals(saved: dict[int, Any]) -> None:
 
 def _one_line(exc: BaseException, limit: int = 400) -> str:
     """An error's text on one line (libraries quote whole files or message definitions),
-    cut at ``limit`` characters."""
-    text = re.sub(r"\s*[\r\n]+\s*", " ", str(exc)).strip()
+    its problem cut at ``limit`` characters; the file's name is never cut, so how deep the
+    input lies does not change what is said of it."""
+    from scan2terrain.errors import InputError
+
+    if isinstance(exc, InputError) and exc.path is not None:
+        return f"{exc.path}: {_cut(exc.problem, limit)}"
+    return _cut(str(exc), limit)
+
+
+def _cut(text: str, limit: int) -> str:
+    text = re.sub(r"\s*[\r\n]+\s*", " ", text).strip()
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
