@@ -1,7 +1,7 @@
 """The picture DESIGN.md draws holds in the code: no import circle between scan2terrain modules
 (function-local and type-checking imports count: a circle hidden in a function is still one),
 and a stage never imports a later one (readers -> octree -> grids -> filters -> geometry ->
-exporters; types, errors, config and fileio are shared below all of them)."""
+replay -> exporters; types, errors, config and fileio are shared below all of them)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
-STAGES = ["readers", "octree", "grids", "filters", "geometry", "exporters"]
+STAGES = ["readers", "octree", "grids", "filters", "geometry", "replay", "exporters"]
 COMPOSERS = {"commands", "cli", "steps", "world"}
 
 

@@ -5,6 +5,7 @@ it names: documentation that a user copies must work."""
 from __future__ import annotations
 
 import argparse
+import functools
 import re
 import shlex
 from pathlib import Path
@@ -52,7 +53,7 @@ def test_the_documents_show_commands() -> None:
     """Guards the parsers above: both sources name every command at least once."""
     readme, helps = readme_commands(), help_commands()
     commands = {"map2world", "image2world", "dem2world", "octree2world", "bag2world"}
-    commands |= {"cloud2world", "convert", "inspect"}
+    commands |= {"cloud2world", "convert", "inspect", "fidelity"}
     assert {c.split()[1] for c in readme} == commands
     assert {c.split()[1] for c in helps} == commands
     assert len(readme) >= 15 and len(helps) >= 20
@@ -75,6 +76,32 @@ def written(words: list[str]) -> Path | None:
     return None if target is None else Path(target)
 
 
+@functools.cache
+def _makers() -> dict[str, str]:
+    """Each folder or file a documented line writes -> the first such line."""
+    makers: dict[str, str] = {}
+    for command in sorted(set(readme_commands()) | set(help_commands())):
+        target = written(argv(command))
+        if target is not None:
+            makers.setdefault(target.parts[0], command)
+    return makers
+
+
+def prerequisites(words: list[str]) -> list[str]:
+    """The documented command lines that write what ``words`` read (``fidelity tb3_world/...``
+    scores the world an earlier line wrote), as a user runs them one after the other."""
+    makers = _makers()
+    target = written(words)
+    return [
+        makers[Path(w).parts[0]]
+        for w in words[1:]
+        if Path(w).parts
+        and Path(w).parts[0] in makers
+        and not Path(w).exists()
+        and (target is None or Path(w).parts[0] != target.parts[0])
+    ]
+
+
 @pytest.mark.parametrize(
     "command",
     sorted(set(readme_commands()) | set(help_commands())),
@@ -90,6 +117,9 @@ def test_documented_command_runs(
         (tmp_path / name).symlink_to(ROOT / name, target_is_directory=True)
     monkeypatch.chdir(tmp_path)
     words = argv(command)
+    for before in prerequisites(words):  # what an earlier documented line wrote, made first
+        assert main(argv(before)) == 0, before
+        capsys.readouterr()
     code = main(words)
     out, err = capsys.readouterr()
     assert code == 0, f"{command}\n{err}"

@@ -133,6 +133,8 @@ class WorldConfig:
 @dataclass
 class OutputConfig:
     preview: bool = True
+    #: Scan worlds: replay the recorded beams in the written world(s) (fidelity.yaml/.png).
+    fidelity: bool = True
     map_yaml: bool = True
     #: Largest map_server image side (pixels); a bigger map is written as tiles, each with its
     #: own YAML and origin.

@@ -36,3 +36,7 @@ class ConfigError(Scan2TerrainError, ValueError):
 
 class OutputError(Scan2TerrainError, OSError):
     """An output cannot be written (exists without --overwrite, not writable)."""
+
+
+class FidelityWarning(UserWarning):
+    """A world replays its recording badly: fewer than half the beams land within 10 cm."""

@@ -54,6 +54,9 @@ class Scan:
         The bag topic ('' for a scan file).
     heading : float
         Yaw of the sensor's x axis in the fixed frame (radians CCW).
+    rotation : float64 (3, 3) or None
+        The sensor frame's orientation in the fixed frame (None: not known, e.g. a scan file
+        without a pose); with ``origin``, the sensor pose (``trajectory.tum``).
     """
 
     points: NDArray[np.float64]
@@ -62,6 +65,61 @@ class Scan:
     stamp_ns: int = 0
     topic: str = ""
     heading: float = 0.0
+    rotation: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class Beams:
+    """Recorded beams for the replay (``replay/beams.py``): every posed scan's sensor pose, and
+    the beams with a return (all, or a deterministic sample), fixed frame, metres.
+
+    ``origins`` (S, 3), ``rotations`` (S, 3, 3) and ``stamps_ns`` (S,) are per scan, in the
+    order read (the trajectory actually used); ``scan`` (N,) is each beam's scan and
+    ``vectors`` (N, 3) float32 its recorded end point less that scan's origin (direction times
+    the recorded range). ``returns`` counts every beam with a return, kept or not.
+    """
+
+    origins: NDArray[np.float64]
+    rotations: NDArray[np.float64]
+    stamps_ns: NDArray[np.int64]
+    scan: NDArray[np.int32]
+    vectors: NDArray[np.float32]
+    returns: int
+    #: (S,) the scan's beams all lie in its sensor's xy plane (a 2D laser)
+    planar: NDArray[np.bool_] | None = None
+
+
+@dataclass(frozen=True)
+class Figures:
+    """How the simulated ranges of a set of beams compare with the recorded ones: metres, and
+    shares of the beams (0..1). Errors are simulated - recorded over the beams that hit
+    something; ``nothing`` is the share that hit nothing, ``short``/``long`` the shares that
+    hit more than 0.2 m before / beyond the recorded range. None: no beam."""
+
+    beams: int
+    median: float | None
+    p95: float | None
+    signed_median: float | None
+    within_5cm: float | None
+    within_10cm: float | None
+    nothing: float | None
+    short: float | None
+    long: float | None
+
+
+@dataclass(frozen=True)
+class Fidelity:
+    """The replay of a recording in one written world: the figures over all beams and per
+    tenth of the recording, and what the picture needs (fixed frame)."""
+
+    world: str  #: the world file replayed in
+    pose_source: str
+    returns: int  #: beams with a return in the recording
+    overall: Figures
+    tenths: tuple[Figures, ...]
+    ends: NDArray[np.float64]  #: (N, 2) the recorded end points, x y
+    errors: NDArray[np.float64]  #: (N,) |simulated - recorded|, inf: hit nothing
+    trajectory: NDArray[np.float64]  #: (S, 2) the sensor's x y per scan
 
 
 @dataclass(frozen=True)

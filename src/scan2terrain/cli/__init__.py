@@ -194,6 +194,17 @@ def _command(args: argparse.Namespace, cfg: Config) -> int:
             result = octree2world(
                 args.tree, args.out, cfg, overwrite=args.overwrite, progress=bar.update
             )
+    elif args.command == "fidelity":
+        from scan2terrain.commands.replay import fidelity_command
+
+        result = fidelity_command(
+            args.world,
+            args.recording,
+            args.out,
+            cfg,
+            simulator=cfg.world.simulator,
+            overwrite=args.overwrite,
+        )
     elif args.command == "dem2world":
         from scan2terrain.commands.dem import dem2world
 

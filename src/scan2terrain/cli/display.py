@@ -122,7 +122,9 @@ def report(result: Result) -> str:
     side = f"{result.heightmap_side}x{result.heightmap_side} px"
     ground = f"heightmap {side}" if rows * cols == 1 else f"{rows}x{cols} heightmap tiles of {side}"
     lines = [
-        f"Wrote {out}/ (no world: {result.no_world})"
+        f"Wrote {out}/ ({result.headline})"
+        if result.headline
+        else f"Wrote {out}/ (no world: {result.no_world})"
         if result.no_world
         else f"Wrote {out}/ (voxels: {result.walls}; {result.size_z:g} m from the lowest to the"
         " highest voxel)"

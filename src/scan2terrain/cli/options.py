@@ -144,6 +144,19 @@ def common(p: argparse.ArgumentParser, *, heights: bool = True) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
 
+def fidelity_option(p: argparse.ArgumentParser) -> None:
+    """The replay of the recording in the world (commands that build a world from scans)."""
+    g = p.add_argument_group("fidelity (a world made from scans)")
+    g.add_argument(
+        "--no-fidelity",
+        action="store_const",
+        const=False,
+        dest="output.fidelity",
+        help="do not replay the recorded beams in the written world (fidelity.yaml, "
+        "fidelity.png and the report's fidelity line)",
+    )
+
+
 def geometry_options(p: argparse.ArgumentParser, *, voxels: bool = True) -> None:
     """Options of the commands whose grid is occupancy (walls), not heights; ``voxels``: the
     command holds voxels (an octree), so --geometry voxels is offered."""
@@ -346,7 +359,8 @@ def pose6(text: str) -> list[float]:
     return [float(v) for v in text.replace(",", " ").split()]
 
 
-def scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
+def scan_options(p: argparse.ArgumentParser, *, bag: bool, insert: bool = True) -> None:
+    """How scans are read and posed; ``insert``: the command inserts them into an octree."""
     s = p.add_argument_group("scans and poses")
     if bag:
         s.add_argument(
@@ -415,6 +429,8 @@ def scan_options(p: argparse.ArgumentParser, *, bag: bool) -> None:
         dest="scans.pose",
         help="a stationary sensor's pose in the fixed frame (metres, radians; default: none)",
     )
+    if not insert:
+        return
     s.add_argument(
         "--insert",
         choices=INSERT_MODES,

@@ -14,6 +14,7 @@ from typing import Any, NoReturn, cast
 from scan2terrain.cli.options import (
     cloud_filter_options,
     common,
+    fidelity_option,
     geometry_options,
     georef_options,
     octree_options,
@@ -49,6 +50,8 @@ COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
     "dem2world": {"terrain.bit_depth": 16, "world.simulator": "gz", "filter.kind": "none"},
     # Clouds come at every scale, from a room to an airborne survey: see cloud_resolution.
     "cloud2world": {"octree.resolution": None},
+    # A world is scored for one simulator: gz-sim's, unless told.
+    "fidelity": {"world.simulator": "gz"},
 }
 
 
@@ -225,9 +228,11 @@ def build_parser() -> argparse.ArgumentParser:
     geometry_options(t)
     octree_options(t)
     voxel_options(t)
+    fidelity_option(t)
     progress_option(t)
     bag_commands(sub)
     dem_command(sub)
+    fidelity_command(sub)
     _state_defaults(sub)
     return parser
 
@@ -279,6 +284,7 @@ def bag_commands(sub: Any) -> None:
     octree_options(b)
     voxel_options(b)
     scan_options(b, bag=True)
+    fidelity_option(b)
     stream_options(b)
     progress_option(b)
 
@@ -363,6 +369,44 @@ def bag_commands(sub: Any) -> None:
     )
     n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
     n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+
+def fidelity_command(sub: Any) -> None:
+    f = sub.add_parser(
+        "fidelity",
+        help="score any Gazebo world against a recording: its beams replayed in the world",
+        description="Cast every recorded beam (a bag's LaserScan/PointCloud2, posed as "
+        "bag2world poses them, or an OctoMap scan file) from its recorded sensor pose into "
+        "the world's collision geometry as the simulator builds it (meshes: STL, OBJ, DAE; "
+        "boxes, cylinders, spheres, planes, polylines, heightmaps; model:// includes through "
+        "the models/ folder beside the world, GZ_SIM_RESOURCE_PATH, IGN_GAZEBO_RESOURCE_PATH "
+        "and GAZEBO_MODEL_PATH), and compare the simulated ranges with the recorded ones. "
+        "The world frame is taken as the recording's fixed frame. Writes fidelity.yaml, "
+        "fidelity.png and trajectory.tum (the sensor poses used) to OUT.",
+        epilog="examples:\n"
+        "  scan2terrain bag2world fixtures/bags/bag1_fuse_tb3_sim_scan_odom -o tb3_world "
+        "--no-fidelity\n"
+        "  scan2terrain fidelity tb3_world/world_gz.sdf fixtures/bags/bag1_fuse_tb3_sim_scan_odom "
+        "-o tb3_fidelity --mount 0 0 0.2 0 0 0\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    f.add_argument("world", type=Path, help="world file (.sdf or .world)")
+    f.add_argument(
+        "recording", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or OctoMap scan file"
+    )
+    f.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist)")
+    f.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    f.add_argument("--config", type=Path, help="YAML config file; flags override it")
+    f.add_argument(
+        "--simulator",
+        choices=("gz", "classic"),
+        dest="world.simulator",
+        help="whose physics builds the world: where a heightmap lies and how it is sampled",
+    )
+    scan_options(f, bag=True, insert=False)
+    f.add_argument("--max-range", type=float, dest="octree.max_range", help="drop hits beyond (m)")
+    f.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
+    f.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
 
 def dem_command(sub: Any) -> None:

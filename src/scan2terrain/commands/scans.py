@@ -21,10 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.commands.maps import height_world, occupancy_world
+from scan2terrain.commands.replay import scan_replay
 from scan2terrain.commands.voxels import cast_hits, point_columns, voxels_world
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
+from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import (
     PointColumns,
     ScanProgress,
@@ -138,14 +140,18 @@ def bag2world(
             result.notes[:0] = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
             return result
         columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
-        tree, ingest = bag_octree(bag, cfg, plan, progress, columns)
+        recorder = BeamRecorder()
+        tree, ingest = bag_octree(bag, cfg, plan, progress, columns, recorder=recorder)
     keys, occupied = tree.occupied_and_free()
     resolution = tree.resolution
     del tree  # its store is not needed for the world: free it first
+    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
+    replay = scan_replay(recorder, bag.path, poses.removeprefix("poses: "), cfg)
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
-            overwrite=overwrite, extra=extra, start=ingest.start, columns=columns,
+            overwrite=overwrite, extra={**extra, "replay": replay}, start=ingest.start,
+            columns=columns,
         )  # fmt: skip
     result.notes[:0] = ingest.notes
     return result
@@ -181,9 +187,12 @@ def bag_octree(
     plan: BagPlan,
     progress: Progress | None = None,
     columns: PointColumns | None = None,
+    *,
+    recorder: BeamRecorder | None = None,
 ) -> tuple[VoxelOctree, Ingest]:
     """Every posed scan of the plan inserted into a new octree (and its hits into
-    ``columns``, the points' column statistics, when given)."""
+    ``columns``, the points' column statistics, and its pose and beams into ``recorder``,
+    when given)."""
     from scan2terrain.readers.scans import posed_scans
     from scan2terrain.types import ScanCounts
 
@@ -200,8 +209,10 @@ def bag_octree(
             start = start_of(scan)
         if batch is None:
             _insert(tree, scan, bag.path)
-        if batch is not None or columns is not None:
+        if batch is not None or columns is not None or recorder is not None:
             hits = hits_of(scan)
+            if recorder is not None:
+                recorder.add(scan, hits)
             if batch is not None:
                 try:
                     batch.add(hits)

@@ -37,7 +37,9 @@ from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileRecords, TileSet
 
 if TYPE_CHECKING:
+    from scan2terrain.commands.replay import Replay
     from scan2terrain.readers.scans import BagPlan
+    from scan2terrain.replay.beams import BeamRecorder
     from scan2terrain.types import Start
     from scan2terrain.world.folder import Result
 
@@ -103,6 +105,7 @@ class Streamed:
     notes: tuple[str, ...]
     start: Start | None = None  #: a bag's first scan pose, as the octree path finds it
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: the clouds' local origin
+    replay: Replay | None = None  #: a bag's: its recorded beams, replayed in the world
 
 
 # --- planning ---------------------------------------------------------------------------------
@@ -228,14 +231,25 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(task: Sequence[Chunk], job: Job) -> TileRecords:
+def rasterise(task: Sequence[Chunk], job: Job) -> tuple[TileRecords, BeamRecorder | None]:
     """The cells of a task's end points (one or more chunks): a Dask task's work. Only the
-    cells with a point travel back, not the tiles they were counted in."""
+    cells with a point travel back, not the tiles they were counted in; with them, for a bag,
+    the recorded beams of its scans (for the replay)."""
     tiles = TileSet(job.lattice)
-    for _, points in _read_ahead(_numbered_points(task, job)):
+    recorder = _recorder(job)
+    for _, points in _read_ahead(_numbered_points(task, job, recorder)):
         if points is not None:
             tiles.add_points(points)
-    return tiles.records()
+    return tiles.records(), recorder
+
+
+def _recorder(job: Job) -> BeamRecorder | None:
+    """A bag's scans are recorded for the replay (the sensor poses and beams)."""
+    if job.bag is None:
+        return None
+    from scan2terrain.replay.beams import BeamRecorder
+
+    return BeamRecorder()
 
 
 def tasks_of(chunks: Sequence[Chunk], points_per_task: int) -> list[tuple[Chunk, ...]]:
@@ -293,10 +307,13 @@ def _read_ahead(items: Iterator[T]) -> Iterator[T]:
         worker.join()
 
 
-def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
-    """The chunk's points less the job's local origin, ``job.step`` at a time."""
+def _chunk_points(
+    chunk: Chunk, job: Job, recorder: BeamRecorder | None = None
+) -> Iterator[NDArray[np.float64]]:
+    """The chunk's points less the job's local origin, ``job.step`` at a time (a bag's scans
+    also into ``recorder``, when given)."""
     if isinstance(chunk, BagChunk):
-        yield from _bag_points(chunk, job)
+        yield from _bag_points(chunk, job, recorder)
         return
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import LAS_SUFFIXES, iter_las, url_suffix
@@ -317,7 +334,9 @@ def _chunk_points(chunk: Chunk, job: Job) -> Iterator[NDArray[np.float64]]:
         yield points[s : s + job.step] - origin
 
 
-def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
+def _bag_points(
+    chunk: BagChunk, job: Job, recorder: BeamRecorder | None
+) -> Iterator[NDArray[np.float64]]:
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.points import hits_of
     from scan2terrain.readers.scans import posed_scans
@@ -332,6 +351,8 @@ def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
         counts = ScanCounts()
         for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
             hits = hits_of(scan)
+            if recorder is not None:
+                recorder.add(scan, hits)
             buf.append(hits)
             held += len(hits)
             if held >= job.step:
@@ -346,35 +367,39 @@ def _bag_points(chunk: BagChunk, job: Job) -> Iterator[NDArray[np.float64]]:
 
 def run(
     chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None = None
-) -> TileSet:
+) -> tuple[TileSet, BeamRecorder | None]:
     """Every chunk rasterised and merged: here, or on Dask with ``stream.workers`` or
-    ``stream.scheduler``. The result does not depend on which."""
+    ``stream.scheduler``; for a bag, its recorded beams too. The result does not depend on
+    which."""
     st = cfg.stream
     if st.workers or st.scheduler:
         return _run_dask(chunks, job, cfg, progress)
     # Straight into the result (the same sums, no merge), reading ahead across chunks: a file
     # of one chunk is read while the previous one is rasterised.
     total = TileSet(job.lattice)
-    for i, points in _read_ahead(_numbered_points(chunks, job)):
+    recorder = _recorder(job)
+    for i, points in _read_ahead(_numbered_points(chunks, job, recorder)):
         if points is None:  # chunk i is done
             if progress is not None:
                 progress(i + 1, len(chunks), total.points)
             continue
         total.add_points(points)
-    return total
+    return total, recorder
 
 
 def _numbered_points(
-    chunks: Sequence[Chunk], job: Job
+    chunks: Sequence[Chunk], job: Job, recorder: BeamRecorder | None = None
 ) -> Iterator[tuple[int, NDArray[np.float64] | None]]:
     """(chunk number, points) for every piece of every chunk, then (chunk number, None)."""
     for i, chunk in enumerate(chunks):
-        for points in _chunk_points(chunk, job):
+        for points in _chunk_points(chunk, job, recorder):
             yield i, points
         yield i, None
 
 
-def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None) -> TileSet:
+def _run_dask(
+    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None
+) -> tuple[TileSet, BeamRecorder | None]:
     """The chunks as Dask tasks (:func:`tasks_of`); results merged on the client as they
     complete. A task whose worker dies is run again by Dask on another worker, and its result
     counts once: only a completed task's result is merged, and every task completes once."""
@@ -386,6 +411,7 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
         ) from None
     st = cfg.stream
     total = TileSet(job.lattice)
+    recorder = _recorder(job)
     with contextlib.ExitStack() as stack:
         if st.scheduler:
             try:
@@ -407,11 +433,14 @@ def _run_dask(chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress
         tasks = tasks_of(chunks, st.chunk_points * CHUNKS_PER_TASK)
         futures = client.map(rasterise, tasks, job=job, pure=False)
         for done, future in enumerate(as_completed(futures), start=1):
-            total.merge(future.result())
+            records, part = future.result()
+            total.merge(records)
+            if recorder is not None and part is not None:
+                recorder.merge(part)  # the same beams in any order (replay/beams.py)
             future.release()
             if progress is not None:
                 progress(done, len(futures), total.points)
-    return total
+    return total, recorder
 
 
 # --- commands ---------------------------------------------------------------------------------
@@ -421,13 +450,14 @@ def stream_clouds(
     files: Sequence[Path | str], cfg: Config, progress: Progress | None = None
 ) -> Streamed:
     chunks, job, notes = plan_clouds(files, cfg)
-    tiles = run(chunks, job, cfg, progress)
+    tiles, _ = run(chunks, job, cfg, progress)
     return Streamed(tiles, tuple(notes), origin=job.origin)
 
 
 def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
+    from scan2terrain.commands.replay import scan_replay
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.points import start_of
     from scan2terrain.readers.scans import plan_bag, posed_scans
@@ -445,11 +475,15 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
         messages = sum(bag.count(plan.scan_topics).values())
         lo = bag.start_ns if plan.start_ns is None else max(plan.start_ns, bag.start_ns)
         hi = bag.end_ns if plan.end_ns is None else min(plan.end_ns, bag.end_ns)
+        source = bag.path
     chunks = plan_bag_chunks(bags, lo, hi, messages)
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
-    tiles = run(chunks, job, cfg, progress)
+    tiles, recorder = run(chunks, job, cfg, progress)
     notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
-    return Streamed(tiles, tuple(notes), None if first is None else start_of(first))
+    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
+    assert recorder is not None  # a bag job records
+    replay = scan_replay(recorder, source, poses.removeprefix("poses: "), cfg)
+    return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
 
 
 def streamed_world(
@@ -464,17 +498,22 @@ def streamed_world(
 
     tiles = streamed.tiles
     counted = tiles.points
+    extra = {} if streamed.replay is None else {"replay": streamed.replay}
     # The grid holds what the world needs: the tiles' records go before the world is made.
     if cfg.octree.grid == "occupancy":
         refuse_tiles_grid(tiles, cfg, source)  # sized before the dense grid is allocated
         grid = tiles.occupancy()
         tiles.clear()
         hint = solid_hint(grid)
-        result = occupancy_world(grid, source, out, cfg, overwrite=overwrite, start=streamed.start)
+        result = occupancy_world(
+            grid, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra
+        )
         result.notes += [hint] if hint else []
     else:  # the octree path's heights come from the same step (commands/voxels.py)
         heights, notes = point_heights(tiles, cfg, source)
-        result = height_world(heights, source, out, cfg, overwrite=overwrite, start=streamed.start)
+        result = height_world(
+            heights, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra
+        )
         result.notes += notes
     result.notes[:0] = [*streamed.notes, f"points counted: {counted:,}"]
     return result

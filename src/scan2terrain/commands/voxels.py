@@ -36,6 +36,8 @@ if TYPE_CHECKING:
 
 
 from scan2terrain.commands.maps import height_world, occupancy_world
+from scan2terrain.commands.replay import scan_replay
+from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import ScanProgress
 
 
@@ -59,14 +61,16 @@ def octree2world(
     source = Path(source)
     if is_scan_file(source):
         columns = point_columns(cfg, cast=True)  # heights from the points, as for clouds
-        tree = build_octree(source, cfg, progress, columns)
+        recorder = BeamRecorder()
+        tree = build_octree(source, cfg, progress, columns, recorder)
         keys, occupied = tree.occupied_and_free()
         resolution = tree.resolution
         del tree  # its store is not needed for the world: free it first
+        replay = scan_replay(recorder, source, "the scan file's NODE poses", cfg)
         with octree_file(resolution, keys, occupied) as extra:
             return voxels_world(
                 keys, occupied, resolution, source=source, out=out, cfg=cfg,
-                overwrite=overwrite, extra=extra, columns=columns,
+                overwrite=overwrite, extra={**extra, "replay": replay}, columns=columns,
             )  # fmt: skip
     from scan2terrain.grids.projection import leaf_columns
 
@@ -191,9 +195,11 @@ def build_octree(
     cfg: Config,
     progress: ScanProgress | None = None,
     columns: PointColumns | None = None,
+    recorder: BeamRecorder | None = None,
 ) -> VoxelOctree:
     """Ray-cast every scan of an OctoMap text scan file into a new octree (and its hits into
-    ``columns``, the points' column statistics, when given)."""
+    ``columns``, the points' column statistics, and its pose and beams into ``recorder``,
+    when given)."""
     from scan2terrain.readers.octomap_scan import read_scans
     from scan2terrain.types import ScanCounts
 
@@ -205,8 +211,12 @@ def build_octree(
             tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
         except InputError as exc:
             raise InputError(source, exc.problem) from exc
-        if columns is not None:
-            columns.add(cast_hits(scan.points, scan.origin, cfg))
+        if columns is not None or recorder is not None:
+            hits = cast_hits(scan.points, scan.origin, cfg)
+            if columns is not None:
+                columns.add(hits)
+            if recorder is not None:
+                recorder.add(scan, hits)
         counts.messages += 1
         counts.inserted += 1
         counts.points += len(scan.points)

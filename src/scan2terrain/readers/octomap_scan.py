@@ -173,10 +173,13 @@ class _Scans:
 
     def _scan(self) -> Scan:
         points = self.parts[0] if len(self.parts) == 1 else np.concatenate(self.parts)
-        origin = np.zeros(3) if self.pose is None else np.array(self.pose[:3])
+        if self.pose is None:  # points already in the map frame, the sensor at its origin
+            origin, rotation = np.zeros(3), np.eye(3)
+        else:
+            origin, rotation = np.array(self.pose[:3]), rpy_matrix(*self.pose[3:])
         self.parts, self.points = [], 0
         self.count += 1
-        return Scan(points, origin)
+        return Scan(points, origin, stamp_ns=0, rotation=rotation)
 
 
 def _posed(pts: NDArray[np.float64], pose: tuple[float, ...] | None) -> NDArray[np.float64]:

@@ -495,7 +495,7 @@ def _pose_batch(
             world += t_j
             heading = math.atan2(float(r_j[1, 0]), float(r_j[0, 0]))
             origin = np.array(t_j, dtype=np.float64)
-            out.append(Scan(world, origin, mr, int(stamps[j]), topic, heading))
+            out.append(Scan(world, origin, mr, int(stamps[j]), topic, heading, np.array(r_j)))
     out.sort(key=lambda s: s.stamp_ns)
     yield from out
 

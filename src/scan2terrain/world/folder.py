@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 from scan2terrain.config import Config
 from scan2terrain.exporters import mapserver as map_export
@@ -36,7 +37,9 @@ SPAWN_FILE = "spawn.yaml"
 EXTRA_ABOUT = {
     "octree": "the octree, as OctoMap's .bt (octovis, octomap_server, octree2world)",
     "occupied_voxels": "the occupied voxels' centres",
-    "trajectory": "the robot's trajectory (TUM: t x y z qx qy qz qw, what --trajectory reads)",
+    "trajectory": "the trajectory (TUM: t x y z qx qy qz qw, what --trajectory reads)",
+    "fidelity.yaml": "the recording replayed in the world(s), figures",
+    "fidelity.png": "where the replayed beams end, by error",
 }
 
 
@@ -77,6 +80,7 @@ class Result:
     spawn: Spawn | None = None  #: where a robot can start, map frame (each world's: worlds)
     preview_label: str = ""  #: what preview.png shows, for the report
     no_world: str = ""  #: why the folder holds no world (a bag with nothing to map), or ""
+    headline: str = ""  #: what the folder holds when it is no world's (the fidelity command)
 
 
 @dataclass(frozen=True)
@@ -89,11 +93,27 @@ class SimWorld:
     map_offset: tuple[float, float]  #: map frame -> this world's frame, for map/*.yaml
     comment: str  #: what the map YAMLs say about where they come from
     spawn: tuple[float, float, float, float, float, float]  #: the spawn pose in this world
+    z_offset: float = 0.0  #: map z -> this world's z (Classic's heightmap zero)
+
+    @property
+    def name(self) -> str:
+        """The world file's name in the folder."""
+        return WORLD_FILES[self.placement.simulator]
 
 
-#: Files written beside the world (octree.bt, occupied voxels), by name: their bytes, or a Future
-#: of them being made on another thread while the world is built (the writer waits for it).
-ExtraFiles = Mapping[str, "bytes | Future[bytes]"]
+class Derived(Protocol):
+    """Files made from the worlds as computed, before anything is written (the replay of a
+    recording in them: ``commands/replay.py``)."""
+
+    def files(self, worlds: Sequence[SimWorld]) -> tuple[dict[str, bytes], list[str]]:
+        """The files (name -> bytes) and the report's notes."""
+        ...
+
+
+#: Files written beside the world (octree.bt, occupied voxels), by name: their bytes, a Future
+#: of them being made on another thread while the world is built (the writer waits for it), or
+#: a :class:`Derived` maker of files from the worlds (its name is only a key).
+ExtraFiles = Mapping[str, "bytes | Future[bytes] | Derived"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +134,7 @@ def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite
     result = folder.result
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
+    extra = _derived(folder, result)
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, folder.map_out)
         for part in folder.worlds:
@@ -127,9 +148,7 @@ def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite
             result.worlds.append(
                 _world_output(part.placement, world, out / "models", yamls, part.spawn)
             )
-        _write_tail(
-            od, result, cfg, source=folder.source, preview=folder.preview, extra=folder.extra
-        )
+        _write_tail(od, result, cfg, source=folder.source, preview=folder.preview, extra=extra)
         made = od.made
     if made:
         result.notes.append(
@@ -137,6 +156,20 @@ def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite
             f"{', '.join(map(str, made))} for the output"
         )
     return result
+
+
+def _derived(folder: WorldFolder, result: Result) -> dict[str, bytes | Future[bytes]]:
+    """The extra files, each :class:`Derived` maker's made from the folder's worlds (its
+    notes added to the report)."""
+    out: dict[str, bytes | Future[bytes]] = {}
+    for name, data in (folder.extra or {}).items():
+        if isinstance(data, (bytes, Future)):
+            out[name] = data
+            continue
+        files, notes = data.files(folder.worlds)
+        out.update(files)
+        result.notes.extend(notes)
+    return out
 
 
 def _world_output(
@@ -190,7 +223,7 @@ def sim_world(
         comment=comment + where + spawn_comment(spawn, pose),
         anchor=anchor,
     )
-    return SimWorld(placement, files, world, offset, comment + where, pose)
+    return SimWorld(placement, files, world, offset, comment + where, pose, z_offset)
 
 
 def spawn_comment(spawn: Spawn, pose: tuple[float, ...]) -> str:
@@ -287,7 +320,7 @@ def _write_tail(
     *,
     source: Path,
     preview: Preview | None,
-    extra: ExtraFiles | None,
+    extra: Mapping[str, bytes | Future[bytes]],
 ) -> None:
     """Preview, extra files and the effective config, as every command writes them."""
     import yaml
@@ -297,9 +330,9 @@ def _write_tail(
         result.preview_label = preview.label
     if result.spawn is not None and result.worlds:
         od.write(SPAWN_FILE, _spawn_yaml(result))
-    for name, data in (extra or {}).items():
+    for name, data in extra.items():
         path = od.write(name, data if isinstance(data, bytes) else data.result())
-        about = EXTRA_ABOUT.get(Path(name).stem)
+        about = EXTRA_ABOUT.get(name, EXTRA_ABOUT.get(Path(name).stem))
         if about is not None:
             result.notes.append(f"{about}: {path}")
     header = f"# Effective scan2terrain config for {source.name}; reuse with --config.\n"

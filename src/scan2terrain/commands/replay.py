@@ -1,0 +1,256 @@
+"""The recording replayed in the worlds a command computed (bag2world, octree2world on scan
+files): ``trajectory.tum`` (the sensor poses used), and unless ``output.fidelity`` is off,
+``fidelity.yaml`` / ``fidelity.png`` and a line of the report, made from the worlds' bytes
+before the folder is written (:class:`Replay`, a ``world.folder.Derived``).
+
+Each world is read back from the bytes about to be written (``readers/world.py``: the
+collision geometry Gazebo builds, heightmaps as its physics triangulates them), and the
+beams are cast in it from their recorded sensor poses (``replay/cast.py``).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.config import Config
+from scan2terrain.errors import FidelityWarning, InputError
+from scan2terrain.replay.beams import BeamRecorder
+from scan2terrain.types import Beams, Fidelity, Scan
+from scan2terrain.world.folder import Result, SimWorld
+
+#: Fewer beams than this share within 10 cm: the report warns.
+WARN_BELOW = 0.5
+#: In a world of walls on a floor at z = 0, a sensor this close above the floor, or below
+#: it, is replayed this high above it (metres): a 2D scan plane on the floor meets the floor's
+#: edge, and a ray starting on a surface stops on it.
+FLOOR_CLEARANCE = 0.1
+
+
+@dataclass(frozen=True)
+class Replay:
+    """What :func:`~scan2terrain.world.folder.write_world_folder` asks for the replay's files."""
+
+    beams: Beams
+    source: str  #: the recording's file name, for the TUM comment
+    pose_source: str  #: where the poses came from (the plan's reason)
+    fidelity: bool = True  #: output.fidelity
+    #: The worlds' floor (map z) where they are walls on a ground at z = 0 (occupancy grids):
+    #: a 2D laser at or below it is replayed FLOOR_CLEARANCE above it; None: terrain.
+    floor: float | None = None
+
+    def files(self, worlds: Sequence[SimWorld]) -> tuple[dict[str, bytes], list[str]]:
+        from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
+        from scan2terrain.exporters.trajectory import tum_bytes
+        from scan2terrain.readers.poses import matrices_to_quaternions
+
+        b = self.beams
+        files = {
+            "trajectory.tum": tum_bytes(
+                b.stamps_ns,
+                b.origins,
+                matrices_to_quaternions(b.rotations),
+                comment=f"sensor poses used for {self.source}, by scan2terrain\n"
+                "t x y z qx qy qz qw",
+            )
+        }
+        if not self.fidelity or not worlds:
+            return files, []
+        if len(b.scan) == 0:
+            return files, ["fidelity: no beam with a return to replay"]
+        notes = []
+        b, lifted = lift_planar(b, self.floor)
+        if lifted:
+            notes.append(
+                f"fidelity: {lifted} scan(s) with the sensor at or below the walls' floor "
+                f"(z < {FLOOR_CLEARANCE:g} m) replayed {FLOOR_CLEARANCE:g} m above it (no mount "
+                "height known? --mount or --pose gives it)"
+            )
+        reports = [replay_world(w, b, self.pose_source) for w in worlds]
+        sampled = len(b.scan) < b.returns
+        files["fidelity.yaml"] = fidelity_yaml(reports, beams_used=len(b.scan), sampled=sampled)
+        files["fidelity.png"] = fidelity_png(reports[0])
+        notes[:0] = [summary(r) for r in reports]
+        worst = min(reports, key=lambda r: r.overall.within_10cm or 0.0)
+        if (worst.overall.within_10cm or 0.0) < WARN_BELOW:
+            warnings.warn(advice(worst), FidelityWarning, stacklevel=2)
+        return files, notes
+
+
+def scan_replay(recorder: BeamRecorder, source: Path, pose_source: str, cfg: Config) -> Replay:
+    """The replay of the scans a world is made from, for the folder writer."""
+    return Replay(
+        recorder.beams(),
+        source=source.name,
+        pose_source=pose_source,
+        fidelity=cfg.output.fidelity,
+        # Walls stand on a floor at z = 0; terrain and voxels keep the map's heights.
+        floor=0.0 if cfg.octree.grid == "occupancy" and cfg.world.geometry != "voxels" else None,
+    )
+
+
+def lift_planar(beams: Beams, floor: float | None) -> tuple[Beams, int]:
+    """The beams with each scan's sensor raised to ``FLOOR_CLEARANCE`` above ``floor`` where
+    it lies lower (walls are extruded upwards from the floor, so a 2D scan plane's height
+    within them does not change a range, but a plane on the floor meets the floor's edge), and
+    how many scans were raised."""
+    import dataclasses
+
+    if floor is None:
+        return beams, 0
+    low = beams.origins[:, 2] < floor + FLOOR_CLEARANCE
+    if not low.any():
+        return beams, 0
+    origins = beams.origins.copy()
+    origins[low, 2] = floor + FLOOR_CLEARANCE
+    return dataclasses.replace(beams, origins=origins), int(low.sum())
+
+
+def replay_world(world: SimWorld, beams: Beams, pose_source: str) -> Fidelity:
+    """One world's replay, read back from its bytes."""
+    from scan2terrain.readers.world import read_world
+    from scan2terrain.replay.cast import fidelity
+
+    geometry = read_world(
+        Path(world.name),
+        simulator=world.placement.simulator,  # type: ignore[arg-type]
+        files={**world.files, world.name: world.world},
+    )
+    offset = (world.map_offset[0], world.map_offset[1], world.z_offset)
+    return fidelity(
+        geometry.vertices,
+        geometry.triangles,
+        beams,
+        world=world.name,
+        pose_source=pose_source,
+        offset=offset,
+    )
+
+
+def advice(report: Fidelity) -> str:
+    """The warning of a world that replays badly, with the likely cause and what helps."""
+    f = report.overall
+    within = 100 * (f.within_10cm or 0.0)
+    causes = []
+    if "odometry" in report.pose_source:
+        causes.append(
+            "the poses are raw odometry, which drifts (a SLAM map's tf, or a "
+            "corrected --trajectory, gives the place)"
+        )
+    if (f.nothing or 0.0) > 0.2:
+        causes.append(
+            "many beams hit nothing: lower --max-range or the resolution, or widen --z-min/--z-max"
+        )
+    if (f.short or 0.0) > 0.2:
+        causes.append(
+            "many beams stop short: walls are doubled or thick (pose drift, "
+            "--resolution too coarse)"
+        )
+    if not causes:
+        causes.append("check the pose source (--poses) and --resolution")
+    return (
+        f"{report.world}: only {within:.1f}% of the recorded beams replayed in the world land "
+        f"within 10 cm of where the sensor saw them (fidelity.png shows where): "
+        + "; ".join(causes)
+    )
+
+
+# --- scan2terrain fidelity WORLD RECORDING ------------------------------------------------------
+
+
+def fidelity_command(
+    world: Path,
+    recording: Sequence[Path],
+    out: Path,
+    cfg: Config,
+    *,
+    simulator: str = "gz",
+    overwrite: bool = False,
+) -> Result:
+    """Any Gazebo world scored against a recording (a bag, or an OctoMap scan file): the
+    world's collision geometry, as the simulator builds it, in the recording's fixed frame;
+    writes ``fidelity.yaml``, ``fidelity.png`` and ``trajectory.tum`` to ``out``."""
+    from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
+    from scan2terrain.readers.world import read_world
+    from scan2terrain.replay.cast import fidelity
+    from scan2terrain.steps import refuse_existing
+    from scan2terrain.world.folder import WorldFolder, write_world_folder
+
+    refuse_existing(out, overwrite, (world, *recording))
+    geometry = read_world(Path(world), simulator=simulator)  # type: ignore[arg-type]
+    recorder, pose_source, notes, source = record(recording, cfg)
+    beams = recorder.beams()
+    if len(beams.scan) == 0:
+        raise InputError(source, "no scan has a beam with a return to replay")
+    replay = Replay(beams, source.name, pose_source, floor=None)
+    files, _ = replay.files([])  # trajectory.tum
+    report = fidelity(
+        geometry.vertices,
+        geometry.triangles,
+        beams,
+        world=Path(world).name,
+        pose_source=pose_source,
+    )
+    sampled = len(beams.scan) < beams.returns
+    files["fidelity.yaml"] = fidelity_yaml([report], beams_used=len(beams.scan), sampled=sampled)
+    files["fidelity.png"] = fidelity_png(report)
+    result = Result(out, notes=[summary(report), *notes, *geometry.parts])
+    result.headline = f"a replay of {source.name} in {Path(world).name}"
+    if (report.overall.within_10cm or 0.0) < WARN_BELOW:
+        warnings.warn(advice(report), FidelityWarning, stacklevel=2)
+    folder = WorldFolder(source, result, [], None, None, files)
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+
+
+def record(
+    recording: Sequence[Path], cfg: Config
+) -> tuple[BeamRecorder, str, list[str], Path]:
+    """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder: the
+    pose source, notes, and the file read (a bag's, in a rosbag2 folder)."""
+    from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
+
+    recorder = BeamRecorder()
+    first = Path(recording[0])
+    if len(recording) == 1 and is_scan_file(first):
+        for scan in read_scans(first):
+            recorder.add(scan, _within(scan, cfg.octree.max_range))
+        if recorder.scans == 0:
+            raise InputError(first, "no scan in the file")
+        return recorder, "the scan file's NODE poses", [f"scans: {recorder.scans}"], first
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.scans import plan_bag, posed_scans
+    from scan2terrain.types import ScanCounts
+
+    with open_bag([Path(r) for r in recording]) as bag:
+        plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+        if not plan.scan_topics:
+            raise InputError(bag.path, "no LaserScan or PointCloud2 topic to replay")
+        counts = ScanCounts()
+        for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
+            recorder.add(scan)
+            counts.inserted += 1
+        if counts.inserted == 0:
+            why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
+            raise InputError(
+                bag.path,
+                f"none of {counts.messages} scan message(s) could be replayed "
+                f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
+            )
+    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
+    notes = [*plan.reasons, f"scans: {counts.inserted} replayed"]
+    if counts.unposed:
+        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
+    return recorder, poses.removeprefix("poses: "), notes, bag.path
+
+
+def _within(scan: Scan, reach: float) -> NDArray[np.float64]:
+    if reach <= 0:
+        return scan.points
+    rel = scan.points - scan.origin
+    near: NDArray[np.float64] = scan.points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
+    return near

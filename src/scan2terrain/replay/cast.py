@@ -1,0 +1,130 @@
+"""Recorded beams cast into a world's collision geometry (Open3D's ``RaycastingScene``: Intel
+Embree, every core), and the simulated ranges compared with the recorded ones.
+
+Geometry and rays are moved by one reference point (the sensor's first position, rounded to
+the metre) before they become float32, Embree's number type, so a world far from its origin
+keeps its millimetres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.types import Beams, Fidelity, Figures
+
+#: A simulated range this much shorter or longer than the recorded one is phantom or missing
+#: geometry (metres).
+FAR = 0.2
+#: The recording is scored in this many equal parts of its time (of its scans for a scan file).
+PARTS = 10
+
+Floats = NDArray[np.float64]
+
+
+def simulated_ranges(
+    vertices: Floats,
+    triangles: NDArray[np.int32],
+    beams: Beams,
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Floats:
+    """Each beam's range in the world whose frame is the fixed frame less ``offset``: the
+    distance from its scan's origin along its recorded direction to the first triangle it
+    meets (+inf: none)."""
+    import open3d as o3d
+
+    n = len(beams.scan)
+    if n == 0:
+        return np.zeros(0)
+    ref = np.round(beams.origins[0]) - np.asarray(offset, dtype=np.float64)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor.from_numpy((vertices - ref).astype(np.float32)),
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(triangles, dtype=np.uint32)),
+    )
+    rays = np.empty((n, 6), dtype=np.float32)
+    local = beams.origins - np.asarray(offset) - ref
+    rays[:, :3] = local[beams.scan]
+    vec = beams.vectors.astype(np.float64)
+    recorded = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+    rays[:, 3:] = vec / recorded[:, None]
+    hit = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy()
+    out: Floats = np.asarray(hit, dtype=np.float64)
+    return out
+
+
+def recorded_ranges(beams: Beams) -> Floats:
+    vec = beams.vectors.astype(np.float64)
+    out: Floats = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+    return out
+
+
+def figures(recorded: Floats, simulated: Floats) -> Figures:
+    """The comparison of one set of beams (see :class:`~scan2terrain.types.Figures`)."""
+    n = len(recorded)
+    if n == 0:
+        return Figures(0, None, None, None, None, None, None, None, None)
+    found = np.isfinite(simulated)
+    signed = simulated[found] - recorded[found]
+    err = np.abs(signed)
+
+    def share(mask_count: int) -> float:
+        return round(mask_count / n, 6)
+
+    def metres(value: float) -> float:
+        return round(float(value), 4) + 0.0
+
+    some = len(err) > 0
+    return Figures(
+        beams=n,
+        median=metres(np.median(err)) if some else None,
+        p95=metres(np.percentile(err, 95)) if some else None,
+        signed_median=metres(np.median(signed)) if some else None,
+        within_5cm=share(int((err <= 0.05).sum())),
+        within_10cm=share(int((err <= 0.10).sum())),
+        nothing=share(int((~found).sum())),
+        short=share(int((signed < -FAR).sum())),
+        long=share(int((signed > FAR).sum())),
+    )
+
+
+def fidelity(
+    vertices: Floats,
+    triangles: NDArray[np.int32],
+    beams: Beams,
+    *,
+    world: str,
+    pose_source: str,
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Fidelity:
+    """The replay of ``beams`` in one world's triangles (world = fixed frame - ``offset``):
+    figures over all beams and per tenth of the recording."""
+    simulated = simulated_ranges(vertices, triangles, beams, offset)
+    recorded = recorded_ranges(beams)
+    part = _parts(beams)
+    tenths = tuple(figures(recorded[part == k], simulated[part == k]) for k in range(PARTS))
+    ends = beams.origins[beams.scan, :2] + beams.vectors[:, :2]
+    return Fidelity(
+        world=world,
+        pose_source=pose_source,
+        returns=beams.returns,
+        overall=figures(recorded, simulated),
+        tenths=tenths,
+        ends=ends,
+        errors=np.abs(simulated - recorded),
+        trajectory=beams.origins[:, :2].copy(),
+    )
+
+
+def _parts(beams: Beams) -> NDArray[np.intp]:
+    """Each beam's tenth of the recording: by its scan's stamp, or by its scan's place when
+    the stamps do not span a time (scan files)."""
+    stamps = beams.stamps_ns
+    count = len(stamps)
+    if count and stamps.max() > stamps.min():
+        t = (stamps - stamps.min()) / float(stamps.max() - stamps.min())
+    else:
+        t = np.arange(count) / max(count, 1)
+    per_scan = np.minimum((t * PARTS).astype(np.intp), PARTS - 1)
+    out: NDArray[np.intp] = per_scan[beams.scan]
+    return out
