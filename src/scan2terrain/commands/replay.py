@@ -207,9 +207,7 @@ def fidelity_command(
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
-def record(
-    recording: Sequence[Path], cfg: Config
-) -> tuple[BeamRecorder, str, list[str], Path]:
+def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, list[str], Path]:
     """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder: the
     pose source, notes, and the file read (a bag's, in a rosbag2 folder)."""
     from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
