@@ -85,8 +85,6 @@ class Beams:
     scan: NDArray[np.int32]
     vectors: NDArray[np.float32]
     returns: int
-    #: (S,) the scan's beams all lie in its sensor's xy plane (a 2D laser)
-    planar: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)

@@ -132,18 +132,8 @@ def test_sample_is_fixed_and_the_same_from_parts() -> None:
     merged.merge(parts[0])
     merged.merge(parts[1])
     a, b = whole.beams(), merged.beams()
-    for name in ("origins", "rotations", "stamps_ns", "scan", "vectors", "planar"):
+    for name in ("origins", "rotations", "stamps_ns", "scan", "vectors"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     assert a.returns == b.returns == 60 * 500
     again = record(scans, budget=4000).beams()
     assert np.array_equal(again.vectors, a.vectors)
-
-
-def test_a_2d_laser_is_recognised() -> None:
-    origin = np.array([0.0, 0.0, 0.0])
-    ang = np.linspace(-math.pi, math.pi, 360, endpoint=False)
-    flat = np.column_stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)]) * 2.0
-    rec = BeamRecorder()
-    rec.add(Scan(flat, origin, rotation=np.eye(3)))
-    rec.add(Scan(flat + np.array([0, 0, 0.5]), origin, rotation=np.eye(3)))  # a cone: not planar
-    assert rec.beams().planar.tolist() == [True, False]

@@ -10,10 +10,12 @@ beams are cast in it from their recorded sensor poses (``replay/cast.py``).
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +25,9 @@ from scan2terrain.errors import FidelityWarning, InputError
 from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.types import Beams, Fidelity, Scan
 from scan2terrain.world.folder import Result, SimWorld
+
+if TYPE_CHECKING:
+    from scan2terrain.readers.world import WorldGeometry
 
 #: Fewer beams than this share within 10 cm: the report warns.
 WARN_BELOW = 0.5
@@ -64,14 +69,24 @@ class Replay:
         if len(b.scan) == 0:
             return files, ["fidelity: no beam with a return to replay"]
         notes = []
-        b, lifted = lift_planar(b, self.floor)
+        b, lifted = lift_low(b, self.floor)
         if lifted:
             notes.append(
                 f"fidelity: {lifted} scan(s) with the sensor at or below the walls' floor "
                 f"(z < {FLOOR_CLEARANCE:g} m) replayed {FLOOR_CLEARANCE:g} m above it (no mount "
                 "height known? --mount or --pose gives it)"
             )
-        reports = [replay_world(w, b, self.pose_source) for w in worlds]
+        reports: list[Fidelity] = []
+        seen: list[tuple[WorldGeometry, tuple[float, float, float], Fidelity]] = []
+        for w in worlds:
+            geometry, offset = world_geometry(w)
+            # Walls are the same triangles in both simulators' worlds: cast once.
+            same = [f for g, o, f in seen if o == offset and _same(g, geometry)]
+            if same:
+                reports.append(dataclasses.replace(same[0], world=w.name))
+                continue
+            reports.append(replay(geometry, offset, b, w.name, self.pose_source))
+            seen.append((geometry, offset, reports[-1]))
         sampled = len(b.scan) < b.returns
         files["fidelity.yaml"] = fidelity_yaml(reports, beams_used=len(b.scan), sampled=sampled)
         files["fidelity.png"] = fidelity_png(reports[0])
@@ -94,13 +109,11 @@ def scan_replay(recorder: BeamRecorder, source: Path, pose_source: str, cfg: Con
     )
 
 
-def lift_planar(beams: Beams, floor: float | None) -> tuple[Beams, int]:
+def lift_low(beams: Beams, floor: float | None) -> tuple[Beams, int]:
     """The beams with each scan's sensor raised to ``FLOOR_CLEARANCE`` above ``floor`` where
     it lies lower (walls are extruded upwards from the floor, so a 2D scan plane's height
     within them does not change a range, but a plane on the floor meets the floor's edge), and
     how many scans were raised."""
-    import dataclasses
-
     if floor is None:
         return beams, 0
     low = beams.origins[:, 2] < floor + FLOOR_CLEARANCE
@@ -111,25 +124,41 @@ def lift_planar(beams: Beams, floor: float | None) -> tuple[Beams, int]:
     return dataclasses.replace(beams, origins=origins), int(low.sum())
 
 
-def replay_world(world: SimWorld, beams: Beams, pose_source: str) -> Fidelity:
-    """One world's replay, read back from its bytes."""
+def world_geometry(world: SimWorld) -> tuple[WorldGeometry, tuple[float, float, float]]:
+    """One world's collision geometry, read back from its bytes, and the offset of its frame
+    from the map frame."""
     from scan2terrain.readers.world import read_world
-    from scan2terrain.replay.cast import fidelity
 
     geometry = read_world(
         Path(world.name),
         simulator=world.placement.simulator,  # type: ignore[arg-type]
         files={**world.files, world.name: world.world},
     )
-    offset = (world.map_offset[0], world.map_offset[1], world.z_offset)
+    return geometry, (world.map_offset[0], world.map_offset[1], world.z_offset)
+
+
+def replay(
+    geometry: WorldGeometry,
+    offset: tuple[float, float, float],
+    beams: Beams,
+    name: str,
+    pose_source: str,
+) -> Fidelity:
+    """The beams cast into one world's triangles (world = map frame - ``offset``)."""
+    from scan2terrain.replay.cast import fidelity
+
     return fidelity(
         geometry.vertices,
         geometry.triangles,
         beams,
-        world=world.name,
+        world=name,
         pose_source=pose_source,
         offset=offset,
     )
+
+
+def _same(a: WorldGeometry, b: WorldGeometry) -> bool:
+    return np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
 
 
 def advice(report: Fidelity) -> str:

@@ -52,7 +52,6 @@ class BeamRecorder:
         self._rotations: list[NDArray[np.float64]] = []
         self._stamps: list[int] = []
         self._topics: list[str] = []
-        self._planar: list[bool] = []
 
     @property
     def scans(self) -> int:
@@ -69,8 +68,6 @@ class BeamRecorder:
         self._stamps.append(scan.stamp_ns)
         self._topics.append(scan.topic)
         n = len(hits)
-        vectors = hits - scan.origin
-        self._planar.append(n > 0 and scan.rotation is not None and _planar(vectors, rotation))
         if n == 0:
             return
         self.returns += n
@@ -78,12 +75,18 @@ class BeamRecorder:
         base = beam_hash(np.array([key], dtype=np.uint64))[0]
         with np.errstate(over="ignore"):
             h = beam_hash(base + np.arange(n, dtype=np.uint64))
-        keep = self._kept(h)
-        if keep.any():
-            place = np.flatnonzero(keep).astype(np.uint32)
-            self._parts.append((index, vectors[keep].astype(np.float32), place, h[keep]))
-            self._held += len(place)
-            self._fit()
+        if self.level == 0:  # every return kept: no copies by index
+            place = np.arange(n, dtype=np.uint32)
+            rows = hits
+        else:
+            place = np.flatnonzero(self._kept(h)).astype(np.uint32)
+            if len(place) == 0:
+                return
+            rows, h = hits[place], h[place]
+        vectors = (rows - scan.origin).astype(np.float32)  # less the origin in float64 first
+        self._parts.append((index, vectors, place, h))
+        self._held += len(place)
+        self._fit()
 
     def merge(self, other: BeamRecorder) -> None:
         """Add another recorder's scans (another part of the same recording) after ours."""
@@ -92,7 +95,6 @@ class BeamRecorder:
         self._rotations += other._rotations
         self._stamps += other._stamps
         self._topics += other._topics
-        self._planar += other._planar
         self.returns += other.returns
         self.level = max(self.level, other.level)
         self._parts += [(i + offset, v, p, h) for i, v, p, h in other._parts]
@@ -147,12 +149,4 @@ class BeamRecorder:
             scan=scan,
             vectors=vectors,
             returns=self.returns,
-            planar=np.array(self._planar, dtype=bool)[order],
         )
-
-
-def _planar(vectors: NDArray[np.float64], rotation: NDArray[np.float64]) -> bool:
-    """Every beam in the sensor's xy plane (a LaserScan), to a micro-radian."""
-    up = vectors @ rotation[:, 2]
-    norm = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
-    return bool((np.abs(up) <= 1e-6 * norm + 1e-9).all())
