@@ -7,7 +7,7 @@
    and on a 2 M-beam recording: the synthetic hall of bench_bag2world.py, 100 clouds of 20,000
    points on /points (MCAP), inserted as end points at 0.1 m. Target (issue 26): the replay
    adds at most 25% to the wall time and at most 20% to the peak memory.
-2. The casting alone (``replay.cast.simulated_ranges``: Open3D's RaycastingScene building
+2. The casting alone (``replay.cast.simulated_ranges``: Embree through embreex, building
    the scene and casting) of those 2 M beams into the world bag2world wrote, read back with
    readers/world.py, on both cores. Target: above 5 M beams a second on 2 cores.
 

@@ -394,6 +394,9 @@ def pgm_counts(out: Path) -> tuple[int, int, int]:
     return int((px == 0).sum()), int((px == 254).sum()), int((px == 205).sum())
 
 
+#: How the replay's warning starts (commands/replay.advice).
+FIDELITY_WARNING = "scan2terrain: warning: world_"
+
 # id: (bag, options, what stdout must say, fewest occupied cells). The first 30 s of the long
 # bags keep the test quick; the whole bags behave the same.
 REAL_SCANS = {
@@ -422,7 +425,9 @@ def test_real_scans_give_a_grid(
     bag, options, reason, fewest = REAL_SCANS[case]
     code, stdout, err = run(capsys, "bag2world", bag, "-o", tmp_path / "w", *options)
     assert code == 0, err
-    assert err == "" and reason in stdout
+    assert reason in stdout
+    # Only the replay may warn (Stage's 5 scans on raw odometry land poorly in their world).
+    assert all(line.startswith(FIDELITY_WARNING) for line in err.splitlines()), err
     occupied, free, _ = pgm_counts(tmp_path / "w")
     assert occupied >= fewest and free > 1000, (occupied, free)
     assert (tmp_path / "w/octree.bt").stat().st_size > 1000
@@ -436,7 +441,9 @@ def test_ccny_broken_index_is_read_with_a_warning(
     with warnings.catch_warnings():
         warnings.simplefilter("always", BagWarning)  # pytest makes warnings errors
         before = warnings.showwarning
-        code, stdout, err = run(capsys, "bag2world", CCNY, "-o", tmp_path / "w", *STATIONARY)
+        code, stdout, err = run(
+            capsys, "bag2world", CCNY, "-o", tmp_path / "w", *STATIONARY, "--no-fidelity"
+        )
         assert warnings.showwarning is before
     assert code == 0, err
     lines = err.splitlines()

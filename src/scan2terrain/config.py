@@ -22,6 +22,8 @@ from scan2terrain.filters.registry import FILTERS as _FILTER_REGISTRY
 UnknownPolicy = Literal["free", "obstacle", "height"]
 Simulator = Literal["gz", "classic", "both"]
 Geometry = Literal["auto", "heightmap", "mesh", "boxes", "polylines", "voxels"]
+#: Where walls made of scans put their faces (geometry/faces.py).
+WallFaces = Literal["auto", "cells", "hits"]
 GridKind = Literal["occupancy", "height"]
 HeightStat = Literal["max", "min", "mean"]
 Fill = Literal["none", "nearest", "idw"]
@@ -37,6 +39,7 @@ FILTERS: tuple[str, ...] = ("none", *_FILTER_REGISTRY)
 UNKNOWN_POLICIES: tuple[UnknownPolicy, ...] = get_args(UnknownPolicy)
 SIMULATORS: tuple[Simulator, ...] = get_args(Simulator)
 GEOMETRIES: tuple[Geometry, ...] = get_args(Geometry)
+WALL_FACES: tuple[WallFaces, ...] = get_args(WallFaces)
 GRID_KINDS: tuple[GridKind, ...] = get_args(GridKind)
 HEIGHT_STATS: tuple[HeightStat, ...] = get_args(HeightStat)
 FILLS: tuple[Fill, ...] = get_args(Fill)
@@ -116,6 +119,11 @@ class WorldConfig:
     #: Outline simplification for mesh/polylines: staircases straightened within this many
     #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
     simplify: float = 0.0
+    #: Walls' faces (mesh, boxes, polylines): on the cell boundaries (cells: a map's cells are
+    #: the truth), or half a cell into a wall toward observed free space, where a scan's end
+    #: points lie on average, on a grid of half the cell size (hits); auto: hits for grids
+    #: made from scans and octrees, cells for maps and images (the replay measures the gain).
+    wall_faces: WallFaces = "auto"
     #: voxels: the side of the cubes (metres) the voxel mesh is cut into, one collision and
     #: visual each (bounded meshes keep Gazebo's mesh loading and broadphase fast).
     chunk: float = 16.0
@@ -515,16 +523,18 @@ class Config:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
-    def for_grid(self, grid: str) -> Config:
+    def for_grid(self, grid: str, *, scans: bool = False) -> Config:
         """This config with ``world.geometry: auto`` resolved for a ``grid`` of ``occupancy``
         or ``heights``: a mesh of walls for occupancy (unless unknown cells have a height of
-        their own), a heightmap for heights. The effective config then says what was built."""
+        their own), a heightmap for heights; and ``world.wall_faces: auto``: hits for a grid
+        made from ``scans``, else cells. The effective config then says what was built."""
         w = self.world
-        if w.geometry != "auto":
-            return self
-        walls = grid == "occupancy" and self.terrain.unknown != "height"
-        world = dataclasses.replace(w, geometry="mesh" if walls else "heightmap")
-        return dataclasses.replace(self, world=world)
+        if w.geometry == "auto":
+            walls = grid == "occupancy" and self.terrain.unknown != "height"
+            w = dataclasses.replace(w, geometry="mesh" if walls else "heightmap")
+        if w.wall_faces == "auto":
+            w = dataclasses.replace(w, wall_faces="hits" if scans else "cells")
+        return self if w == self.world else dataclasses.replace(self, world=w)
 
 
 #: Ranges of settings whose absurd values would exhaust memory or lose all precision.

@@ -92,7 +92,9 @@ class Figures:
     """How the simulated ranges of a set of beams compare with the recorded ones: metres, and
     shares of the beams (0..1). Errors are simulated - recorded over the beams that hit
     something; ``nothing`` is the share that hit nothing, ``short``/``long`` the shares that
-    hit more than 0.2 m before / beyond the recorded range. None: no beam."""
+    hit more than 0.2 m before / beyond the recorded range, ``inside`` the share whose first
+    hit faced away from the sensor (it lies inside one of the world's solids). None: no
+    beam."""
 
     beams: int
     median: float | None
@@ -103,6 +105,7 @@ class Figures:
     nothing: float | None
     short: float | None
     long: float | None
+    inside: float | None
 
 
 @dataclass(frozen=True)

@@ -70,7 +70,8 @@ def record(scans: list[Scan], budget: int = 1_000_000) -> BeamRecorder:
 def test_box_room_replays_to_the_tenth_of_a_millimetre() -> None:
     v, t = box_mesh(LO, HI)
     beams = record(recorded_scans()).beams()
-    sim = simulated_ranges(v, t, beams)
+    sim, back = simulated_ranges(v, t, beams)
+    assert not back.any()
     rec = np.linalg.norm(beams.vectors.astype(np.float64), axis=1)
     assert np.abs(sim - rec).max() < 1e-3
     f = fidelity(v, t, beams, world="room", pose_source="given")
@@ -89,7 +90,8 @@ def test_far_from_the_origin_keeps_the_millimetres() -> None:
         for s in recorded_scans(5)
     ]
     beams = record(scans).beams()
-    sim = simulated_ranges(v, t, beams)
+    sim, back = simulated_ranges(v, t, beams)
+    assert not back.any()
     rec = np.linalg.norm(beams.vectors.astype(np.float64), axis=1)
     assert np.abs(sim - rec).max() < 1e-3
 
@@ -119,6 +121,9 @@ def test_missing_geometry_and_phantoms_are_counted() -> None:
     f = figures(rec, sim)
     assert (f.within_5cm, f.nothing, f.short, f.long) == (0.25, 0.25, 0.25, 0.25)
     assert f.median == 0.5 and f.signed_median == 0.01  # of 0.01, -0.5, +0.5
+    assert f.inside == 0.0
+    inside = figures(np.array([2.0, 3.0]), np.array([0.5, 3.0]), np.array([True, False]))
+    assert inside.inside == 0.5 and inside.short == 0.5
 
 
 def test_sample_is_fixed_and_the_same_from_parts() -> None:
@@ -137,3 +142,13 @@ def test_sample_is_fixed_and_the_same_from_parts() -> None:
     assert a.returns == b.returns == 60 * 500
     again = record(scans, budget=4000).beams()
     assert np.array_equal(again.vectors, a.vectors)
+
+
+def test_a_sensor_inside_a_solid_is_seen() -> None:
+    """The room's faces face into it (a cavity); turned out, the room is a solid box the
+    sensor sits in, and every first hit is the back of a face."""
+    v, t = box_mesh(LO, HI)
+    beams = record(recorded_scans(4)).beams()
+    assert fidelity(v, t, beams, world="room", pose_source="given").overall.inside == 0.0
+    solid = fidelity(v, t[:, ::-1], beams, world="room", pose_source="given").overall
+    assert solid.inside == 1.0

@@ -20,6 +20,7 @@ from scan2terrain.config import (
     SIMULATORS,
     UNKNOWN_POLICIES,
     VOXEL_POINTS,
+    WALL_FACES,
 )
 from scan2terrain.filters.registry import FILTERS as FILTER_REGISTRY
 
@@ -179,6 +180,14 @@ def geometry_options(p: argparse.ArgumentParser, *, voxels: bool = True) -> None
         dest="world.simplify",
         help="metres: straighten mesh/polyline outlines within this tolerance, keeping every "
         "cell on its side (0: cell edges)",
+    )
+    g.add_argument(
+        "--wall-faces",
+        choices=WALL_FACES,
+        dest="world.wall_faces",
+        help="where mesh/boxes/polylines walls put their faces: on the cell boundaries, or "
+        "half a cell into the wall toward observed free space, where a scan's end points lie "
+        "on average (the wall kept at least a cell thick)",
     )
 
 

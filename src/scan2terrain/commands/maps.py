@@ -80,12 +80,14 @@ def occupancy_world(
     overwrite: bool,
     extra: ExtraFiles | None = None,
     start: Start | None = None,
+    scans: bool = False,
 ) -> Result:
     """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
     (unknown policy) -> heightmap -> worlds, map_server map, preview. ``extra`` files (relative
     name -> bytes) are written into the same folder; ``start`` is where the robot started
-    (the spawn pose is searched from there; None: from the map origin)."""
-    cfg = cfg.for_grid("occupancy")
+    (the spawn pose is searched from there; None: from the map origin); ``scans``: the grid
+    was made from scans (walls' faces where their end points lie, ``world.wall_faces``)."""
+    cfg = cfg.for_grid("occupancy", scans=scans)
     if cfg.world.geometry == "heightmap":
         heightmap_options(cfg)
     trinary = invert_occupancy(grid.data) if cfg.canvas.invert else grid.data

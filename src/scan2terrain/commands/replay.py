@@ -42,7 +42,6 @@ class Replay:
     """What :func:`~scan2terrain.world.folder.write_world_folder` asks for the replay's files."""
 
     beams: Beams
-    source: str  #: the recording's file name, for the TUM comment
     pose_source: str  #: where the poses came from (the plan's reason)
     fidelity: bool = True  #: output.fidelity
     #: The worlds' floor (map z) where they are walls on a ground at z = 0 (occupancy grids):
@@ -60,8 +59,7 @@ class Replay:
                 b.stamps_ns,
                 b.origins,
                 matrices_to_quaternions(b.rotations),
-                comment=f"sensor poses used for {self.source}, by scan2terrain\n"
-                "t x y z qx qy qz qw",
+                comment="the sensor poses of the scans used, by scan2terrain\nt x y z qx qy qz qw",
             )
         }
         if not self.fidelity or not worlds:
@@ -97,11 +95,10 @@ class Replay:
         return files, notes
 
 
-def scan_replay(recorder: BeamRecorder, source: Path, pose_source: str, cfg: Config) -> Replay:
+def scan_replay(recorder: BeamRecorder, pose_source: str, cfg: Config) -> Replay:
     """The replay of the scans a world is made from, for the folder writer."""
     return Replay(
         recorder.beams(),
-        source=source.name,
         pose_source=pose_source,
         fidelity=cfg.output.fidelity,
         # Walls stand on a floor at z = 0; terrain and voxels keep the map's heights.
@@ -166,6 +163,12 @@ def advice(report: Fidelity) -> str:
     f = report.overall
     within = 100 * (f.within_10cm or 0.0)
     causes = []
+    if (f.inside or 0.0) > 0.2:
+        causes.append(
+            f"{100 * (f.inside or 0.0):.0f}% of the beams start inside the world's solids (a "
+            "floor or ceiling taken as walls: --z-min/--z-max keep them out of the grid; or "
+            "the sensor's height: --pose, --mount)"
+        )
     if "odometry" in report.pose_source:
         causes.append(
             "the poses are raw odometry, which drifts (a SLAM map's tf, or a "
@@ -177,8 +180,8 @@ def advice(report: Fidelity) -> str:
         )
     if (f.short or 0.0) > 0.2:
         causes.append(
-            "many beams stop short: walls are doubled or thick (pose drift, "
-            "--resolution too coarse)"
+            "many beams stop short: walls doubled or thick (pose drift, --resolution too "
+            "coarse), or a floor taken for walls (--z-min/--z-max)"
         )
     if not causes:
         causes.append("check the pose source (--poses) and --resolution")
@@ -216,7 +219,7 @@ def fidelity_command(
     beams = recorder.beams()
     if len(beams.scan) == 0:
         raise InputError(source, "no scan has a beam with a return to replay")
-    replay = Replay(beams, source.name, pose_source, floor=None)
+    replay = Replay(beams, pose_source, floor=None)
     files, _ = replay.files([])  # trajectory.tum
     report = fidelity(
         geometry.vertices,

@@ -146,7 +146,7 @@ def bag2world(
     resolution = tree.resolution
     del tree  # its store is not needed for the world: free it first
     poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
-    replay = scan_replay(recorder, bag.path, poses.removeprefix("poses: "), cfg)
+    replay = scan_replay(recorder, poses.removeprefix("poses: "), cfg)
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,

@@ -475,14 +475,13 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
         messages = sum(bag.count(plan.scan_topics).values())
         lo = bag.start_ns if plan.start_ns is None else max(plan.start_ns, bag.start_ns)
         hi = bag.end_ns if plan.end_ns is None else min(plan.end_ns, bag.end_ns)
-        source = bag.path
     chunks = plan_bag_chunks(bags, lo, hi, messages)
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
     tiles, recorder = run(chunks, job, cfg, progress)
     notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
     poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
     assert recorder is not None  # a bag job records
-    replay = scan_replay(recorder, source, poses.removeprefix("poses: "), cfg)
+    replay = scan_replay(recorder, poses.removeprefix("poses: "), cfg)
     return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
 
 
@@ -506,8 +505,9 @@ def streamed_world(
         tiles.clear()
         hint = solid_hint(grid)
         result = occupancy_world(
-            grid, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra
-        )
+            grid, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra,
+            scans=True,
+        )  # fmt: skip
         result.notes += [hint] if hint else []
     else:  # the octree path's heights come from the same step (commands/voxels.py)
         heights, notes = point_heights(tiles, cfg, source)

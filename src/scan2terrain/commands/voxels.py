@@ -66,7 +66,7 @@ def octree2world(
         keys, occupied = tree.occupied_and_free()
         resolution = tree.resolution
         del tree  # its store is not needed for the world: free it first
-        replay = scan_replay(recorder, source, "the scan file's NODE poses", cfg)
+        replay = scan_replay(recorder, "the scan file's NODE poses", cfg)
         with octree_file(resolution, keys, occupied) as extra:
             return voxels_world(
                 keys, occupied, resolution, source=source, out=out, cfg=cfg,
@@ -141,7 +141,7 @@ def voxels_world(
         )
         hint = solid_hint(grid)
         result = occupancy_world(
-            grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start
+            grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start, scans=True
         )
         result.notes += [hint] if hint else []
         return result

@@ -35,7 +35,8 @@ _HEADER = """\
 # sensor pose along its recorded direction into the world's collision geometry as the
 # files say. Metres and shares of the beams (0..1); errors are simulated - recorded, over
 # the beams that hit something; nothing: the share that hit no geometry; short / long: the
-# shares that hit more than 0.2 m before / beyond the recorded range. tenths: the same
+# shares that hit more than 0.2 m before / beyond the recorded range; inside: the share whose
+# first hit faced away from the sensor (it lies inside a solid). tenths: the same
 # per tenth of the recording's time. A sample is a fixed hash of each return's place.
 """
 

@@ -84,6 +84,9 @@ class BeamRecorder:
                 return
             rows, h = hits[place], h[place]
         vectors = (rows - scan.origin).astype(np.float32)  # less the origin in float64 first
+        if not vectors.any(axis=1).all():  # a return at the sensor itself has no direction
+            good = vectors.any(axis=1)
+            vectors, place, h = vectors[good], place[good], h[good]
         self._parts.append((index, vectors, place, h))
         self._held += len(place)
         self._fit()

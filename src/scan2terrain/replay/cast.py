@@ -33,16 +33,17 @@ def simulated_ranges(
     triangles: NDArray[np.int32],
     beams: Beams,
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
-) -> Floats:
+) -> tuple[Floats, NDArray[np.bool_]]:
     """Each beam's range in the world whose frame is the fixed frame less ``offset``: the
     distance from its scan's origin along its recorded direction to the first triangle it
-    meets (+inf: none)."""
+    meets (+inf: none); and whether that triangle faced away from the sensor (the beam
+    started inside a solid, every solid the tool writes being closed with its faces out)."""
     from embreex.mesh_construction import TriangleMesh
     from embreex.rtcore_scene import EmbreeScene
 
     n = len(beams.scan)
     if n == 0 or len(triangles) == 0:
-        return np.full(n, np.inf)
+        return np.full(n, np.inf), np.zeros(n, dtype=bool)
     ref = np.round(beams.origins[0]) - np.asarray(offset, dtype=np.float64)
     scene = EmbreeScene()
     TriangleMesh(
@@ -56,15 +57,17 @@ def simulated_ranges(
     recorded = np.sqrt(np.einsum("ij,ij->i", vec, vec))
     directions = np.ascontiguousarray(vec / recorded[:, None], dtype=np.float32)
 
-    def cast(start: int) -> NDArray[np.float32]:
+    def cast(start: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
         part = slice(start, start + CHUNK)
         hit = scene.run(origins[part], directions[part], output=1)
-        out: NDArray[np.float32] = np.where(hit["primID"] >= 0, hit["tfar"], np.inf)
-        return out
+        found = hit["primID"] >= 0
+        back = found & (np.einsum("ij,ij->i", hit["Ng"], directions[part]) > 0)
+        return np.where(found, hit["tfar"], np.inf), back
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         parts = list(pool.map(cast, range(0, n, CHUNK)))
-    return np.concatenate(parts).astype(np.float64)
+    ranges = np.concatenate([p[0] for p in parts]).astype(np.float64)
+    return ranges, np.concatenate([p[1] for p in parts])
 
 
 def recorded_ranges(beams: Beams) -> Floats:
@@ -73,11 +76,12 @@ def recorded_ranges(beams: Beams) -> Floats:
     return out
 
 
-def figures(recorded: Floats, simulated: Floats) -> Figures:
-    """The comparison of one set of beams (see :class:`~scan2terrain.types.Figures`)."""
+def figures(recorded: Floats, simulated: Floats, back: NDArray[np.bool_] | None = None) -> Figures:
+    """The comparison of one set of beams (see :class:`~scan2terrain.types.Figures`);
+    ``back``: the beams whose first hit faced away from the sensor."""
     n = len(recorded)
     if n == 0:
-        return Figures(0, None, None, None, None, None, None, None, None)
+        return Figures(0, None, None, None, None, None, None, None, None, None)
     found = np.isfinite(simulated)
     signed = simulated[found] - recorded[found]
     err = np.abs(signed)
@@ -99,6 +103,7 @@ def figures(recorded: Floats, simulated: Floats) -> Figures:
         nothing=share(int((~found).sum())),
         short=share(int((signed < -FAR).sum())),
         long=share(int((signed > FAR).sum())),
+        inside=share(0 if back is None else int(back.sum())),
     )
 
 
@@ -113,16 +118,18 @@ def fidelity(
 ) -> Fidelity:
     """The replay of ``beams`` in one world's triangles (world = fixed frame - ``offset``):
     figures over all beams and per tenth of the recording."""
-    simulated = simulated_ranges(vertices, triangles, beams, offset)
+    simulated, back = simulated_ranges(vertices, triangles, beams, offset)
     recorded = recorded_ranges(beams)
     part = _parts(beams)
-    tenths = tuple(figures(recorded[part == k], simulated[part == k]) for k in range(PARTS))
+    tenths = tuple(
+        figures(recorded[part == k], simulated[part == k], back[part == k]) for k in range(PARTS)
+    )
     ends = beams.origins[beams.scan, :2] + beams.vectors[:, :2]
     return Fidelity(
         world=world,
         pose_source=pose_source,
         returns=beams.returns,
-        overall=figures(recorded, simulated),
+        overall=figures(recorded, simulated, back),
         tenths=tenths,
         ends=ends,
         errors=np.abs(simulated - recorded),

@@ -3,6 +3,7 @@ walls on a ground plane, written in map coordinates, handed to the one writer.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,6 +16,7 @@ from scan2terrain.config import Config
 from scan2terrain.errors import InputError
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.geometry.faces import faces_at_hits
 from scan2terrain.grids import (
     axis_align,
 )
@@ -77,7 +79,14 @@ def walls_world(
     rows, cols = walls.shape
     cx, cy = origin.transform(np.array(cols * r / 2), np.array(rows * r / 2))
     ground = sdf.Ground((float(cx), float(cy)), (cols * r, rows * r), origin.yaw)
-    if walls.any():
+    if walls.any() and cfg.world.wall_faces == "hits":  # on a grid of half the cells
+        fine = faces_at_hits(walls, grid.data == FREE)
+        made = _walls(fine, r / 2, origin, ground=ground, cfg=cfg, source=source)
+        made = dataclasses.replace(
+            made,
+            summary=f"{made.summary}, faces where the scans' end points lie (wall faces: hits)",
+        )
+    elif walls.any():
         made = _walls(walls, r, origin, ground=ground, cfg=cfg, source=source)
     else:
         made = _Walls(
@@ -99,7 +108,9 @@ def walls_world(
         " at the world origin and the geometry is written in map coordinates (unlike a"
         " heightmap, meshes, boxes and polylines can be placed anywhere).\n"
     )
-    payload = repr((kind, cfg.world.simplify, t.height, r, origin, walls.shape)).encode()
+    payload = repr(
+        (kind, cfg.world.simplify, t.height, r, origin, walls.shape, cfg.world.wall_faces)
+    ).encode()
     base_name = unique_name(source, walls.tobytes() + payload, cfg)
     aligned, world_origin = axis_align(grid.data, origin, r, fill=UNKNOWN)
     map_out = OccupancyGrid(aligned, r, world_origin)
