@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from scan2terrain.cli import main
 from scan2terrain.readers.tracks import read_tum
@@ -153,8 +154,12 @@ def test_the_written_trajectory_poses_the_scans_as_the_odometry_did(
     a = {p.relative_to(tmp_path / "a"): p for p in (tmp_path / "a").rglob("*") if p.is_file()}
     b = {p.relative_to(tmp_path / "b"): p for p in (tmp_path / "b").rglob("*") if p.is_file()}
     assert sorted(a) == sorted(b)
-    differ = [str(k) for k in a if a[k].read_bytes() != b[k].read_bytes()]
-    assert differ == ["scan2terrain.yaml"]  # scans.poses and scans.trajectory
+    differ = sorted(str(k) for k in a if a[k].read_bytes() != b[k].read_bytes())
+    # scans.poses and scans.trajectory; the replay's pose source, not its figures
+    assert differ == ["fidelity.yaml", "scan2terrain.yaml"]
+    replays = [yaml.safe_load((tmp_path / c / "fidelity.yaml").read_text()) for c in "ab"]
+    assert replays[0]["worlds"] == replays[1]["worlds"]
+    assert replays[0]["pose_source"] != replays[1]["pose_source"]
 
 
 def test_inspect_says_there_is_nothing_to_map(

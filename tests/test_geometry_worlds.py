@@ -420,7 +420,13 @@ def test_simplified_outlines_cover_the_same_cells(tmp_path: Path, geometry: str)
 def test_octree_occupancy_walls(tmp_path: Path) -> None:
     cfg = load_config(
         None,
-        {"terrain.height": H, "world.geometry": "boxes", "octree.z_min": 0.1, "octree.z_max": 1.8},
+        {
+            "terrain.height": H,
+            "world.geometry": "boxes",
+            "octree.z_min": 0.1,
+            "octree.z_max": 1.8,
+            "world.wall_faces": "cells",  # the boxes on the cell edges of the map
+        },
     )
     result = voxels.octree2world(ROOT / "fixtures/octomap/geb079.bt", tmp_path / "w", cfg)
     found = check_walls(result, tmp_path)

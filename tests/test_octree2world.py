@@ -192,7 +192,7 @@ def test_scan_file_progress_bar(tmp_path: Path, capsys: pytest.CaptureFixture[st
     is read once), none for a .bt, none by default when stderr is not a terminal."""
     text = "NODE 0 0 0 0 0 0\n1 0 0\n0 2 0\nNODE 1 0 0 0 0 0\n3 3 1\n"
     (tmp_path / "s.dat").write_text(text)
-    argv = ["octree2world", str(tmp_path / "s.dat"), "--resolution", "0.5"]
+    argv = ["octree2world", str(tmp_path / "s.dat"), "--resolution", "0.5", "--no-fidelity"]
     assert main([*argv, "-o", str(tmp_path / "a"), "--progress"]) == 0
     err = capsys.readouterr().err
     assert "2scan" in err.replace(" ", "") and "points/s" in err, err

@@ -34,7 +34,10 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[str]]:
 
     Image.fromarray((np.indices((9, 9)).sum(axis=0) * 14).astype(np.uint8)).save(root / "i.png")
     bag = synthetic_room("tf", n_scans=6).write(root / "room.bag", "ros1")
+    world = root / "world"
+    assert main(["map2world", str(yaml_path), "-o", str(world), "-q"]) == 0
     return {
+        "fidelity": [str(world / "world_gz.sdf"), str(root / "scan.dat")],
         "map2world": [str(yaml_path)],
         "image2world": [str(root / "i.png")],
         "octree2world": [str(root / "scan.dat")],
@@ -74,6 +77,7 @@ def test_every_command_has_numeric_options() -> None:
         "convert",
         "inspect",
         "dem2world",
+        "fidelity",
     }
 
 

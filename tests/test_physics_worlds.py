@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from scan2terrain.cli import main
+from scan2terrain.geometry.faces import faces_at_hits
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid
 from tests.bagmaker import synthetic_room
@@ -80,9 +81,19 @@ class Built:
         return self.out / "models"
 
     def grid(self) -> OccupancyGrid:
-        """The filtered map in the gz-sim world frame (world axes)."""
+        """The walls' grid in the gz-sim world frame (world axes): the filtered map, or for
+        walls whose faces are where the scans' end points lie (``world.wall_faces: hits``) the
+        grid of half its cells they are built from (geometry/faces.py), the cells left out
+        of a wall free."""
         _, grid = read_map_yaml(self.out / "map/map_gz.yaml")
-        return grid
+        config = yaml.safe_load((self.out / "scan2terrain.yaml").read_text())
+        if config["world"]["wall_faces"] != "hits" or config["world"]["geometry"] == "heightmap":
+            return grid
+        walls = grid.data == 100
+        fine = faces_at_hits(walls, grid.data == 0)
+        data = np.repeat(np.repeat(grid.data, 2, axis=0), 2, axis=1)
+        data = np.where(fine, 100, np.where(data == 100, 0, data)).astype(np.int8)
+        return OccupancyGrid(data, grid.resolution / 2, grid.origin)
 
     def spawn(self) -> tuple[float, float, float, float]:
         doc = yaml.safe_load((self.out / "spawn.yaml").read_text())
