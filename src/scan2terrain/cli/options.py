@@ -187,7 +187,7 @@ def geometry_options(p: argparse.ArgumentParser, *, voxels: bool = True) -> None
         dest="world.wall_faces",
         help="where mesh/boxes/polylines walls put their faces: on the cell boundaries, or "
         "half a cell into the wall toward observed free space, where a scan's end points lie "
-        "on average (the wall kept at least a cell thick)",
+        "on average (a wall seen from one side keeps half a cell, one seen from both its cells)",
     )
 
 
