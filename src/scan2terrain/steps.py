@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config, octree_resolution, two_digits_up
-from scan2terrain.errors import ConfigError
+from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters._numbers import decimal_text
 from scan2terrain.exporters.heightmap import CLASSIC, Heightmap, make_heightmap
 from scan2terrain.exporters.output import OutputDir
@@ -530,3 +530,26 @@ def grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint
     span = hi - lo if hi > lo else 1.0
     grey: NDArray[np.uint8] = np.clip(np.rint((heights - lo) / span * 255), 0, 255).astype(np.uint8)
     return grey
+
+
+def refuse_unused(source: Path, counts: ScanCounts, done: str) -> None:
+    """A recording none of whose scan messages could be ``done`` (used, replayed): one line
+    saying how many lacked a pose or a valid point, and why the first had no pose."""
+    if counts.inserted:
+        return
+    why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
+    raise InputError(
+        source,
+        f"none of {counts.messages} scan message(s) could be {done} "
+        f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
+    )
+
+
+def skipped_notes(counts: ScanCounts) -> list[str]:
+    """The report's lines on the scans left out: without a pose, without a valid point."""
+    notes = []
+    if counts.unposed:
+        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
+    if counts.empty:
+        notes.append(f"scans without a valid point, skipped: {counts.empty}")
+    return notes

@@ -18,12 +18,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import FidelityWarning, InputError
 from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.types import Beams, Fidelity, Scan
+from scan2terrain.types import Beams, Fidelity
 from scan2terrain.world.folder import Result, SimWorld
 
 if TYPE_CHECKING:
@@ -243,12 +242,14 @@ def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, l
     """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder: the
     pose source, notes, and the file read (a bag's, in a rosbag2 folder)."""
     from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
+    from scan2terrain.readers.points import within_reach
+    from scan2terrain.steps import refuse_unused, skipped_notes
 
     recorder = BeamRecorder()
     first = Path(recording[0])
     if len(recording) == 1 and is_scan_file(first):
         for scan in read_scans(first):
-            recorder.add(scan, _within(scan, cfg.octree.max_range))
+            recorder.add(scan, within_reach(scan.points, scan.origin, cfg.octree.max_range))
         if recorder.scans == 0:
             raise InputError(first, "no scan in the file")
         return recorder, "the scan file's NODE poses", [f"scans: {recorder.scans}"], first
@@ -264,23 +265,6 @@ def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, l
         for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
             recorder.add(scan)
             counts.inserted += 1
-        if counts.inserted == 0:
-            why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
-            raise InputError(
-                bag.path,
-                f"none of {counts.messages} scan message(s) could be replayed "
-                f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
-            )
-    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
-    notes = [*plan.reasons, f"scans: {counts.inserted} replayed"]
-    if counts.unposed:
-        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
-    return recorder, poses.removeprefix("poses: "), notes, bag.path
-
-
-def _within(scan: Scan, reach: float) -> NDArray[np.float64]:
-    if reach <= 0:
-        return scan.points
-    rel = scan.points - scan.origin
-    near: NDArray[np.float64] = scan.points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
-    return near
+        refuse_unused(bag.path, counts, "replayed")
+    notes = [*plan.reasons, f"scans: {counts.inserted} replayed", *skipped_notes(counts)]
+    return recorder, plan.pose_source, notes, bag.path

@@ -34,6 +34,8 @@ from scan2terrain.steps import (
     new_tree,
     octree_file,
     refuse_existing,
+    refuse_unused,
+    skipped_notes,
 )
 from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result
@@ -145,8 +147,7 @@ def bag2world(
     keys, occupied = tree.occupied_and_free()
     resolution = tree.resolution
     del tree  # its store is not needed for the world: free it first
-    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
-    replay = scan_replay(recorder, poses.removeprefix("poses: "), cfg)
+    replay = scan_replay(recorder, plan.pose_source, cfg)
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
@@ -229,18 +230,9 @@ def bag_octree(
             batch.flush()
         except InputError as exc:
             raise InputError(bag.path, exc.problem) from exc
-    if counts.inserted == 0:
-        why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
-        raise InputError(
-            bag.path,
-            f"none of {counts.messages} scan message(s) could be used "
-            f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
-        )
+    refuse_unused(bag.path, counts, "used")
     notes = [*plan.reasons, f"scans: {counts.inserted} inserted ({counts.points:,} points)"]
-    if counts.unposed:
-        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
-    if counts.empty:
-        notes.append(f"scans without a valid point, skipped: {counts.empty}")
+    notes += skipped_notes(counts)
     if plan.tf is not None:
         notes += [f"tf: {p}" for p in plan.tf.problems()]
     return tree, Ingest(counts.inserted, counts.points, tuple(notes), start)

@@ -479,9 +479,8 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
     tiles, recorder = run(chunks, job, cfg, progress)
     notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
-    poses = next((r for r in plan.reasons if r.startswith("poses: ")), "poses: given")
     assert recorder is not None  # a bag job records
-    replay = scan_replay(recorder, poses.removeprefix("poses: "), cfg)
+    replay = scan_replay(recorder, plan.pose_source, cfg)
     return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
 
 

@@ -182,12 +182,9 @@ def cast_hits(
     points: NDArray[np.float64], sensor: NDArray[np.float64], cfg: Config
 ) -> NDArray[np.float64]:
     """A ray-cast scan's hits: its points within ``octree.max_range`` of the sensor."""
-    reach = cfg.octree.max_range
-    if reach <= 0:
-        return points
-    rel = points - sensor
-    near: NDArray[np.float64] = points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
-    return near
+    from scan2terrain.readers.points import within_reach
+
+    return within_reach(points, sensor, cfg.octree.max_range)
 
 
 def build_octree(

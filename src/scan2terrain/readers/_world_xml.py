@@ -10,7 +10,6 @@ parent's is refused: frames are not resolved.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from lxml import etree
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers.poses import rpy_matrix
 
 #: Largest length or coordinate (metres) taken as a number rather than a mistake.
 MAX_COORDINATE = 1e7
@@ -37,20 +37,6 @@ DEFAULTS = {
     "heightmap/sampling": "1",
     "polyline/height": "1",
 }
-
-
-def rotation_rpy(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
-    """Rz(yaw) Ry(pitch) Rx(roll), as gz-math's Quaternion(roll, pitch, yaw)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 def rotation_quaternion(x: float, y: float, z: float, w: float) -> NDArray[np.float64]:
@@ -158,5 +144,5 @@ def pose_of(el: etree._Element, source: Path, parents: tuple[str, ...]) -> NDArr
         out[:3, :3] = rotation_quaternion(*(q / length))
     else:
         angles = np.radians(values[3:]) if degrees else values[3:]
-        out[:3, :3] = rotation_rpy(*angles)
+        out[:3, :3] = rpy_matrix(*(float(a) for a in angles))  # finite: numbers() checks
     return out

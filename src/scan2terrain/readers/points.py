@@ -15,12 +15,18 @@ FAR = 1000.0
 
 def hits_of(scan: Scan) -> NDArray[np.float64]:
     """A scan's hits: its points, less a LaserScan's clear-only beams (beyond max range)."""
-    if scan.max_range <= 0:
-        return scan.points
-    rel = scan.points - scan.origin
-    d2 = np.einsum("ij,ij->i", rel, rel)
-    hits: NDArray[np.float64] = scan.points[d2 <= scan.max_range**2]
-    return hits
+    return within_reach(scan.points, scan.origin, scan.max_range)
+
+
+def within_reach(
+    points: NDArray[np.float64], sensor: NDArray[np.float64], reach: float
+) -> NDArray[np.float64]:
+    """The points within ``reach`` metres of the sensor (all of them when ``reach`` <= 0)."""
+    if reach <= 0:
+        return points
+    rel = points - sensor
+    near: NDArray[np.float64] = points[np.einsum("ij,ij->i", rel, rel) <= reach**2]
+    return near
 
 
 def start_of(scan: Scan) -> Start:

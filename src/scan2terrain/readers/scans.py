@@ -84,6 +84,12 @@ class BagPlan:
     base_frame: str = ""
 
     @property
+    def pose_source(self) -> str:
+        """Where the scans' poses come from, as the plan's reason says ("odometry on /odom
+        plus the sensor mount"), for the replay's report."""
+        return next((r for r in self.reasons if r.startswith("poses: ")), "poses: given")[7:]
+
+    @property
     def trajectory_only(self) -> bool:
         """No scans and no map: the bag gives the robot's trajectory and nothing to map."""
         return not self.scan_topics and self.map_topic is None
