@@ -9,7 +9,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
-STAGES = ["readers", "octree", "grids", "filters", "geometry", "replay", "exporters"]
+STAGES = ["readers", "slam", "octree", "grids", "filters", "geometry", "replay", "exporters"]
 COMPOSERS = {"commands", "cli", "steps", "world"}
 
 

@@ -30,6 +30,8 @@ Fill = Literal["none", "nearest", "idw"]
 VoxelPoints = Literal["none", "ply", "pcd"]
 PoseSource = Literal["auto", "tf", "odom", "trajectory", "fixed"]
 InsertMode = Literal["auto", "raycast", "endpoints"]
+#: Pose correction by scan matching and loop closure (slam/).
+CorrectMode = Literal["auto", "on", "off"]
 LocalOrigin = Literal["auto", "none"]
 BitDepth = Literal[8, 16]
 
@@ -46,6 +48,7 @@ FILLS: tuple[Fill, ...] = get_args(Fill)
 VOXEL_POINTS: tuple[VoxelPoints, ...] = get_args(VoxelPoints)
 POSE_SOURCES: tuple[PoseSource, ...] = get_args(PoseSource)
 INSERT_MODES: tuple[InsertMode, ...] = get_args(InsertMode)
+CORRECT_MODES: tuple[CorrectMode, ...] = get_args(CorrectMode)
 LOCAL_ORIGINS: tuple[LocalOrigin, ...] = get_args(LocalOrigin)
 BIT_DEPTHS: tuple[BitDepth, ...] = get_args(BitDepth)
 
@@ -204,6 +207,10 @@ class ScansConfig:
     end: float | None = None
     #: auto (tf, else odometry) | tf | odom | trajectory | fixed
     poses: PoseSource = "auto"
+    #: Correct the poses by scan matching and loop closure: on (whatever the source) | off |
+    #: auto (only odometry poses: no frame above the odometry frame in tf, or poses odom; kept
+    #: only when the recording's beams agree better with the corrected map).
+    correct: CorrectMode = "auto"
     #: The frame the world is built in; None: 'map' if the tf tree has it, else 'odom'.
     fixed_frame: str | None = None
     #: Odometry topic (poses: odom); None picks the bag's only nav_msgs/Odometry topic.

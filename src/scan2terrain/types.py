@@ -124,6 +124,53 @@ class Fidelity:
 
 
 @dataclass(frozen=True)
+class PoseCorrection:
+    """Corrected poses of a recording's scans (``slam/``), and how to move any sensor pose by
+    them: the correction of a pose at time t is the planar rigid motion ``D(t) = C(t) P(t)^-1``
+    (corrected times prior, in the fixed frame), interpolated between the corrected scans'
+    stamps and held before the first and after the last; so other topics move with the scans.
+
+    ``prior`` and ``corrected`` (K, 3) are x, y (metres) and yaw (radians) of the sensor in the
+    fixed frame at ``stamps_ns`` (K,), increasing; ``prior_xyz`` (K, 3) and ``prior_xyzw``
+    (K, 4) its full prior pose, for ``trajectory_raw.tum``. ``notes`` say what was done.
+    """
+
+    stamps_ns: NDArray[np.int64]
+    prior: NDArray[np.float64]
+    corrected: NDArray[np.float64]
+    prior_xyz: NDArray[np.float64]
+    prior_xyzw: NDArray[np.float64]
+    notes: tuple[str, ...] = ()
+
+    def deltas(self, stamps_ns: NDArray[np.int64]) -> NDArray[np.float64]:
+        """(N, 3) x, y, yaw of ``D(t)`` at each stamp."""
+        p, c = self.prior, self.corrected
+        dyaw = np.unwrap(c[:, 2] - p[:, 2])
+        cos, sin = np.cos(dyaw), np.sin(dyaw)
+        dx = c[:, 0] - (cos * p[:, 0] - sin * p[:, 1])
+        dy = c[:, 1] - (sin * p[:, 0] + cos * p[:, 1])
+        t = np.asarray(stamps_ns, dtype=np.float64)
+        knots = self.stamps_ns.astype(np.float64)
+        return np.stack([np.interp(t, knots, v) for v in (dx, dy, dyaw)], axis=1)
+
+    def apply(
+        self, stamps_ns: NDArray[np.int64], rotations: NDArray[np.float64],
+        translations: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+        """Sensor poses (rotations (N, 3, 3), translations (N, 3)) moved by ``D`` at their
+        stamps."""
+        d = self.deltas(stamps_ns)
+        cos, sin = np.cos(d[:, 2]), np.sin(d[:, 2])
+        rz = np.zeros((len(d), 3, 3))
+        rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1] = cos, -sin, sin, cos
+        rz[:, 2, 2] = 1.0
+        r = rz @ rotations
+        t = np.einsum("kij,kj->ki", rz, translations)
+        t[:, :2] += d[:, :2]
+        return r, t
+
+
+@dataclass(frozen=True)
 class Pose2D:
     """Pose of a grid's lower-left corner in the map frame (metres, radians CCW)."""
 

@@ -40,6 +40,8 @@ KERNEL_MODULES = (
     "scan2terrain.grids._tile_kernels",
     "scan2terrain.readers._las_kernels",
     "scan2terrain.geometry._outline_kernels",
+    "scan2terrain.slam._bnb_kernels",
+    "scan2terrain.replay._march_kernels",
 )
 
 
@@ -218,6 +220,22 @@ def _warm_grids() -> None:
     walls[2:10, 3] = walls[5, 2:11] = True
     simplify(trace(walls, 0.05, Pose2D(0.0, 0.0)), 0.05, resolution=0.05, origin=Pose2D(0.0, 0.0))
     _warm_las()
+    _warm_correction()
+
+
+def _warm_correction() -> None:
+    """The correlative matcher's branch and bound and the agreement's beam marching."""
+    import numpy as np
+
+    from scan2terrain.replay.agreement import agreement
+    from scan2terrain.slam.matching import LikelihoodGrid
+
+    t = np.linspace(0.0, 1.0, 200)
+    walls = np.concatenate([np.c_[8 * t, 0 * t], np.c_[0 * t, 5 * t], np.c_[8 * t, 5 + 0 * t]])
+    grid = LikelihoodGrid(walls, 0.1, 0.1, margin=1.0)
+    grid.match(walls - (2.0, 2.0), np.array([2.1, 1.9, 0.02]), 0.5, 0.1, 0.3)
+    poses = np.array([[2.0 + 0.1 * k, 2.0, 0.0] for k in range(10)])
+    agreement(poses, [walls - p[:2] for p in poses], 0.1)
 
 
 def _tree() -> Any:

@@ -10,6 +10,7 @@ from typing import Any
 
 from scan2terrain.config import (
     BIT_DEPTHS,
+    CORRECT_MODES,
     FILLS,
     FILTERS,
     GEOMETRIES,
@@ -391,6 +392,13 @@ def scan_options(p: argparse.ArgumentParser, *, bag: bool, insert: bool = True) 
             choices=POSE_SOURCES,
             dest="scans.poses",
             help="where scan poses come from (auto: tf, else odometry)",
+        )
+        s.add_argument(
+            "--correct",
+            choices=CORRECT_MODES,
+            dest="scans.correct",
+            help="correct the poses by scan matching and loop closure (auto: when they are "
+            "odometry only, kept if the beams agree better; on: any poses; off: as recorded)",
         )
         s.add_argument(
             "--fixed-frame",

@@ -22,7 +22,7 @@ import numpy as np
 from scan2terrain.config import Config
 from scan2terrain.errors import FidelityWarning, InputError
 from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.types import Beams, Fidelity
+from scan2terrain.types import Beams, Fidelity, PoseCorrection
 from scan2terrain.world.folder import Result, SimWorld
 
 if TYPE_CHECKING:
@@ -46,6 +46,8 @@ class Replay:
     #: The worlds' floor (map z) where they are walls on a ground at z = 0 (occupancy grids):
     #: a 2D laser at or below it is replayed FLOOR_CLEARANCE above it; None: terrain.
     floor: float | None = None
+    #: The poses before correction (``scans.correct``), for trajectory_raw.tum.
+    raw: PoseCorrection | None = None
 
     def files(self, worlds: Sequence[SimWorld]) -> tuple[dict[str, bytes], list[str]]:
         from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
@@ -61,6 +63,14 @@ class Replay:
                 comment="the sensor poses of the scans used, by scan2terrain\nt x y z qx qy qz qw",
             )
         }
+        if (raw := self.raw) is not None:
+            files["trajectory_raw.tum"] = tum_bytes(
+                raw.stamps_ns,
+                raw.prior_xyz,
+                raw.prior_xyzw,
+                comment="the sensor poses as recorded, before correction, by scan2terrain\n"
+                "t x y z qx qy qz qw",
+            )
         if not self.fidelity or not worlds:
             return files, []
         if len(b.scan) == 0:
@@ -94,10 +104,16 @@ class Replay:
         return files, notes
 
 
-def scan_replay(recorder: BeamRecorder, pose_source: str, cfg: Config) -> Replay:
-    """The replay of the scans a world is made from, for the folder writer."""
+def scan_replay(
+    recorder: BeamRecorder, pose_source: str, cfg: Config, raw: PoseCorrection | None = None
+) -> Replay:
+    """The replay of the scans a world is made from, for the folder writer; ``raw``: the
+    correction applied to their poses."""
+    if raw is not None:
+        pose_source += ", corrected by scan matching and loop closure"
     return Replay(
         recorder.beams(),
+        raw=raw,
         pose_source=pose_source,
         fidelity=cfg.output.fidelity,
         # Walls stand on a floor at z = 0; terrain and voxels keep the map's heights.

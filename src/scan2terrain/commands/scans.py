@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.commands.correct import correct_plan
 from scan2terrain.commands.maps import height_world, occupancy_world
 from scan2terrain.commands.replay import scan_replay
 from scan2terrain.commands.voxels import cast_hits, point_columns, voxels_world
@@ -112,6 +113,7 @@ def bag2world(
             return stream.streamed_world(streamed, Path(bags[0]), out, cfg, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+        corrected = correct_plan(bag, cfg, plan)
         if plan.trajectory_only:
             return _trajectory_folder(bag, plan, out, cfg, overwrite=overwrite)
         if plan.map_topic is not None:
@@ -147,14 +149,14 @@ def bag2world(
     keys, occupied = tree.occupied_and_free()
     resolution = tree.resolution
     del tree  # its store is not needed for the world: free it first
-    replay = scan_replay(recorder, plan.pose_source, cfg)
+    replay = scan_replay(recorder, plan.pose_source, cfg, plan.correction)
     with octree_file(resolution, keys, occupied) as extra:
         result = voxels_world(
             keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
             overwrite=overwrite, extra={**extra, "replay": replay}, start=ingest.start,
             columns=columns,
         )  # fmt: skip
-    result.notes[:0] = ingest.notes
+    result.notes[:0] = [*ingest.notes, *corrected]
     return result
 
 

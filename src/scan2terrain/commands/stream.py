@@ -457,6 +457,7 @@ def stream_clouds(
 def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
+    from scan2terrain.commands.correct import correct_plan
     from scan2terrain.commands.replay import scan_replay
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.points import start_of
@@ -467,6 +468,7 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if plan.map_topic is not None:
             raise InputError(bag.path, f"{plan.map_topic} is a map, not scans: nothing to stream")
+        corrected = correct_plan(bag, cfg, plan)
         bag.require_messages(plan.scan_topics, plan.start_ns, plan.end_ns)
         # The first posed scan only (one batch of messages): the spawn pose's starting point.
         scans = posed_scans(bag, cfg.scans, plan, ScanCounts(), max_range=cfg.octree.max_range)
@@ -479,8 +481,9 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     job = Job(lattice_for(cfg), (0.0, 0.0, 0.0), cfg.stream.chunk_points, bag=BagJob(plan, cfg))
     tiles, recorder = run(chunks, job, cfg, progress)
     notes = [*plan.reasons, f"streamed: {len(chunks)} piece(s) over {messages:,} scan messages"]
+    notes += corrected
     assert recorder is not None  # a bag job records
-    replay = scan_replay(recorder, plan.pose_source, cfg)
+    replay = scan_replay(recorder, plan.pose_source, cfg, plan.correction)
     return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
 
 

@@ -59,7 +59,15 @@ from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import matrices_to_quaternions, pose6
 from scan2terrain.readers.tf import TfBuffer
 from scan2terrain.readers.tracks import PoseTrack, odometry_track, read_tum
-from scan2terrain.types import HeightGrid, Pose2D, Scan, ScanCounts, Transform, normalise_frame
+from scan2terrain.types import (
+    HeightGrid,
+    Pose2D,
+    PoseCorrection,
+    Scan,
+    ScanCounts,
+    Transform,
+    normalise_frame,
+)
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64
@@ -82,6 +90,9 @@ class BagPlan:
     tf: TfBuffer | None = None  #: the bag's tf tree, read once
     #: The robot base frame whose trajectory is written when there is nothing to map (tf poses).
     base_frame: str = ""
+    #: Poses corrected by scan matching and loop closure (``scans.correct``), applied to every
+    #: pose the plan gives; None: as recorded.
+    correction: PoseCorrection | None = None
 
     @property
     def pose_source(self) -> str:
@@ -165,6 +176,7 @@ def plan_bag(bag: Bag, cfg: ScansConfig, *, max_range: float = -1.0) -> BagPlan:
                 "LaserScan does up to its range_max"
             )
     _plan_poses(bag, cfg, plan)
+    plan.reasons += bag.container.notes  # what the container says of its poses (CARMEN logs)
     return plan
 
 
@@ -329,6 +341,35 @@ def _plan_poses(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> None:
         plan.reasons.append(f"poses: one fixed sensor pose {cfg.pose}")
 
 
+#: Fixed frames that SLAM, localisation or a survey publish: poses in them are not odometry.
+MAP_FRAMES = frozenset({"map", "world", "earth", "utm"})
+
+
+def odometry_only(plan: BagPlan) -> tuple[bool, str]:
+    """Whether the plan's poses are raw odometry (what ``scans.correct: auto`` corrects), and
+    why: odometry poses; or tf whose fixed frame is not a map frame (:data:`MAP_FRAMES`) and
+    has one moving transform on the way to the sensor (odom -> base_link; a SLAM system adds
+    map -> odom). A given trajectory or a fixed pose is not odometry."""
+    if plan.poses == "odom":
+        return True, "the poses are odometry"
+    if plan.poses != "tf" or plan.tf is None:
+        return False, f"the poses are a given {plan.poses}"
+    fixed = plan.fixed_frame
+    if fixed in MAP_FRAMES:
+        return False, f"tf has the map frame '{fixed}' (poses a SLAM system made)"
+    edges = {e.child: e for e in plan.tf.edges()}
+    moving = set()
+    for sensor in plan.sensor_frames.values():
+        frame = sensor
+        while frame in edges and frame != fixed:
+            if not edges[frame].static:
+                moving.add(frame)
+            frame = edges[frame].parent
+    if len(moving) > 1:
+        return False, f"tf has {len(moving)} moving frames above the sensor in '{fixed}'"
+    return True, f"tf has no frame above the odometry frame '{fixed}'"
+
+
 def _tf_reaches(bag: Bag, cfg: ScansConfig, plan: BagPlan) -> bool:
     """Whether the bag's tf tree links a fixed frame to every sensor frame; sets the frame."""
     if plan.tf is None:
@@ -421,6 +462,14 @@ class _Poser:
         self, topic: str, stamps: NDArray[np.int64]
     ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
         """(valid, rotations (K, 3, 3), translations (K, 3)) of the sensor of ``topic``."""
+        valid, r, t = self._recorded(topic, stamps)
+        if self.plan.correction is not None:
+            r, t = self.plan.correction.apply(stamps, r, t)
+        return valid, r, t
+
+    def _recorded(
+        self, topic: str, stamps: NDArray[np.int64]
+    ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
         k = len(stamps)
         if self.fixed is not None:
             r = np.broadcast_to(self.fixed.rotation, (k, 3, 3))

@@ -38,6 +38,7 @@ EXTRA_ABOUT = {
     "octree": "the octree, as OctoMap's .bt (octovis, octomap_server, octree2world)",
     "occupied_voxels": "the occupied voxels' centres",
     "trajectory": "the trajectory (TUM: t x y z qx qy qz qw, what --trajectory reads)",
+    "trajectory_raw": "the trajectory as recorded, before correction (TUM)",
     "fidelity.yaml": "the recording replayed in the world(s), figures",
     "fidelity.png": "where the replayed beams end, by error",
 }

@@ -1,0 +1,1 @@
+"""Pose correction: scan matching, loop closure and the pose graph (``scans.correct``)."""
