@@ -30,6 +30,7 @@ rosbags' failures and the defects of old ROS1 bags that are read anyway (broken 
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
@@ -57,7 +58,9 @@ from scan2terrain.readers._bag_errors import (
     _undecodable,
 )
 from scan2terrain.readers._bag_source import _Source, _source
+from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._mcap import McapFile, mcap_profile
+from scan2terrain.readers.carmen import CarmenFile, is_carmen_log, named_like_log
 from scan2terrain.types import normalise_frame
 
 if TYPE_CHECKING:
@@ -138,7 +141,8 @@ def _default_typestore() -> Typestore:
 
 class _Reader(Protocol):
     """What :class:`Bag` reads through: rosbags' ``AnyReader`` (:class:`_Rosbags`) or, for MCAP
-    files that are not rosbag2's, :class:`~scan2terrain.readers._mcap.McapFile`."""
+    files that are not rosbag2's, :class:`~scan2terrain.readers._mcap.McapFile`, or for CARMEN
+    logs :class:`~scan2terrain.readers.carmen.CarmenFile`."""
 
     @property
     def start_time(self) -> int: ...
@@ -148,13 +152,15 @@ class _Reader(Protocol):
     def topics(self) -> Mapping[str, _RosbagsTopic]: ...
     @property
     def connections(self) -> list[Connection]: ...
+    # The raw item is the message's bytes (rosbags, MCAP), or its index (a CARMEN log): only
+    # ``decode`` looks at it.
     def messages(
         self,
         connections: Collection[Connection] = (),
         start: int | None = None,
         stop: int | None = None,
-    ) -> Iterator[tuple[Connection, int, bytes | memoryview]]: ...
-    def decode(self, conn: Connection, raw: bytes | memoryview) -> object: ...
+    ) -> Iterator[tuple[Connection, int, Any]]: ...
+    def decode(self, conn: Connection, raw: Any) -> object: ...
     def undecodable(self, conn: Connection) -> str | None: ...
 
 
@@ -178,28 +184,42 @@ class Container:
     Attributes
     ----------
     kind : str
-        ``ROS1 bag``, ``rosbag2``, or ``MCAP``.
+        ``ROS1 bag``, ``rosbag2``, ``MCAP``, or ``CARMEN log``.
     profile : str or None
         An MCAP file's header profile (``ros1``, ``ros2``, ``""``); None for the others.
     reader : str
         Which code reads it: ``rosbags`` or ``mcap`` (the ``mcap`` package's records).
     encodings : dict of str to str
-        Per topic (MCAP files read with ``mcap`` only): ``"ros1 / ros1msg sensor_msgs/LaserScan,
-        decoded as ROS1 (rosbags)"`` or the reason it is not read.
+        Per topic (MCAP files read with ``mcap``, CARMEN logs): ``"ros1 / ros1msg
+        sensor_msgs/LaserScan, decoded as ROS1 (rosbags)"`` or the reason it is not read; what a
+        CARMEN log's topic is made of.
+    detail : str
+        More on the file (a CARMEN log's lines and the records not used), or "".
+    notes : tuple of str
+        What the plan is to say of the recording (a CARMEN log's mounts, raw or corrected
+        poses, timestamps that step back).
     """
 
     kind: str
     profile: str | None
     reader: str
     encodings: dict[str, str]
+    detail: str = ""
+    notes: tuple[str, ...] = ()
 
     def describe(self) -> str:
         """One line: ``MCAP, profile 'ros1', read with mcap``."""
         profile = "" if self.profile is None else f", profile {self.profile!r}"
-        return f"{self.kind}{profile}, read with {self.reader}"
+        detail = f" ({self.detail})" if self.detail else ""
+        return f"{self.kind}{profile}{detail}, read with {self.reader}"
 
 
 def _container(reader: _Reader, source: _Source) -> Container:
+    if isinstance(reader, CarmenFile):
+        return Container(
+            "CARMEN log", None, "scan2terrain (text, line by line)", reader.encodings(),
+            reader.described, tuple(reader.notes),
+        )  # fmt: skip
     if isinstance(reader, McapFile):
         encodings: dict[str, str] = {}
         for conn in reader.connections:
@@ -521,7 +541,8 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     path : Path, str, or sequence of them
         A ROS1 ``.bag``; several ``.bag`` files of a split recording (or a folder of them); a
         rosbag2 folder (or its ``metadata.yaml``); a standalone ``.db3``, ``.mcap``,
-        ``.mcap.zstd`` or ``.db3.zstd`` file.
+        ``.mcap.zstd`` or ``.db3.zstd`` file; a CARMEN log (``.clf``, ``.log``, plain, ``.gz``
+        or ``.bz2``, :mod:`scan2terrain.readers.carmen`).
 
     Returns
     -------
@@ -541,10 +562,13 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     """
     stack = ExitStack()
     try:
-        source = _source(path, stack)
+        carmen = _carmen_log(path)
+        source = _Source((carmen,), (carmen,)) if carmen else _source(path, stack)
         where = source.paths[0]
-        reader: _Rosbags | McapFile
-        if len(source.read) == 1 and mcap_profile(source.read[0]) not in (None, "ros2"):
+        reader: _Rosbags | McapFile | CarmenFile
+        if carmen is not None:
+            reader = CarmenFile(carmen)
+        elif len(source.read) == 1 and mcap_profile(source.read[0]) not in (None, "ros2"):
             reader = McapFile(source.read[0], where)  # rosbags reads only profile ros2
         else:
             try:
@@ -577,6 +601,19 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
         listed = "; ".join(f"{t}: {why}" for t, why in bag.skipped.items())
         warnings.warn(BagWarning(f"{bag.path}: skipping topics: {listed}"), stacklevel=2)
     return bag
+
+
+def _carmen_log(path: Path | str | Sequence[Path | str]) -> Path | None:
+    """The CARMEN log ``path`` names (:func:`~scan2terrain.readers.carmen.is_carmen_log`), or
+    None; several paths of which one is a log are refused (a log is read alone)."""
+    items = [Path(path)] if isinstance(path, (str, os.PathLike)) else [Path(p) for p in path]
+    for p in items:
+        if named_like_log(p):  # missing, a folder, a FIFO: said now, as a log's problem
+            regular_file(p, "CARMEN log")
+    logs = [p for p in items if is_carmen_log(p)]
+    if logs and len(items) > 1:
+        raise InputError(logs[0], "a CARMEN log is read alone: give one log, not several paths")
+    return logs[0] if logs else None
 
 
 def resolve_time(value: str | float | None, bag: Bag) -> int | None:
