@@ -1,6 +1,7 @@
 """The real MIT CSAIL CARMEN laser log as a ROS bag, and as posed scans for OctoMap.
 
-CARMEN logs are text, one record per line. This log (``fixtures/logs/raw_carmen_mit_csail``)
+CARMEN logs are text, one record per line, read by :mod:`scan2terrain.readers.carmen` (which
+also makes bag2world read them directly). This log (``fixtures/logs/raw_carmen_mit_csail``)
 holds 1988 ``FLASER`` lines::
 
     FLASER n r_1 .. r_n  x y theta  odom_x odom_y odom_theta  ipc_timestamp host logger_timestamp
@@ -9,13 +10,8 @@ holds 1988 ``FLASER`` lines::
 return (the SICK's overflow code). ``x y theta`` is the laser's pose; in *this* log it equals the
 odometry pose on every line (checked by the tests), so the trajectory is raw odometry, not a
 corrected one. ``ipc_timestamp`` is UNIX time; ``logger_timestamp`` counts from the start of the
-log. ``ROBOTLASER1`` lines (other logs of the same collection) are read too::
-
-    ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1 .. r_n
-                m rem_1 .. rem_m  laser_x laser_y laser_theta  robot_x robot_y robot_theta
-                tv rv forward_safety side_safety turn_axis  ipc_timestamp host logger_timestamp
-
-``ODOM`` and other records are ignored: the laser records carry the poses.
+log. ``ROBOTLASER1`` lines (other logs of the same collection) are read too. ``ODOM`` and other
+records are ignored here: the laser records carry the poses.
 
 The bag (:func:`carmen_to_bag`) has ``/scan`` LaserScan (frame ``laser``), ``/tf`` odom ->
 base_link at every scan's stamp, and ``/tf_static`` base_link -> laser (``mount``): base_link is
@@ -26,9 +22,6 @@ was. :func:`carmen_scans` gives the same scans directly as world-frame points an
 
 from __future__ import annotations
 
-import bz2
-import gzip
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -85,19 +78,11 @@ class CarmenLog:
         return len(self.stamps_ns)
 
 
-def _text(path: Path) -> str:
-    raw = path.read_bytes()
-    if path.suffix == ".bz2":
-        raw = bz2.decompress(raw)
-    elif path.suffix == ".gz":
-        raw = gzip.decompress(raw)
-    return raw.decode("ascii")
-
-
 def read_carmen(
     path: Path = DEFAULT_LOG, *, every: int = 1, max_scans: int | None = None
 ) -> CarmenLog:
-    """Read the FLASER / ROBOTLASER1 records of a CARMEN log (``.clf``, ``.bz2``, ``.gz``).
+    """The front laser records of a CARMEN log (``.clf``, ``.bz2``, ``.gz``), parsed by
+    :mod:`scan2terrain.readers.carmen` (FLASER or ROBOTLASER1; their beam geometry as it says).
 
     Parameters
     ----------
@@ -111,64 +96,27 @@ def read_carmen(
     Raises
     ------
     ValueError
-        A malformed laser line, or scans of different geometry in one log.
+        A damaged log (:class:`~scan2terrain.errors.InputError` naming the file and line), or
+        scans of different geometry in one log.
     """
-    stamps: list[int] = []
-    ranges: list[NDArray[np.float32]] = []
-    laser: list[tuple[float, float, float]] = []
-    odom: list[tuple[float, float, float]] = []
-    geometry: tuple[float, float] | None = None
-    seen = 0
-    for number, line in enumerate(_text(Path(path)).splitlines(), start=1):
-        f = line.split()
-        if not f or f[0] not in {"FLASER", "ROBOTLASER1"}:
-            continue
-        seen += 1
-        if (seen - 1) % every:
-            continue
-        try:
-            if f[0] == "FLASER":
-                n = int(f[1])
-                r = np.array(f[2 : 2 + n], dtype=np.float32)
-                rest = [float(v) for v in f[2 + n : 8 + n]]
-                lpose, opose = rest[0:3], rest[3:6]
-                stamp = f[8 + n]
-                # CARMEN's front laser: 180 degrees, first beam at -90.
-                geom = (-math.pi / 2, math.pi / (n - 1))
-            else:
-                start, _fov, res = float(f[2]), float(f[3]), float(f[4])
-                n = int(f[8])
-                r = np.array(f[9 : 9 + n], dtype=np.float32)
-                m = int(f[9 + n])
-                k = 10 + n + m
-                rest = [float(v) for v in f[k : k + 6]]
-                lpose, opose = rest[0:3], rest[3:6]
-                stamp = f[k + 11]
-                geom = (start, res)
-        except (ValueError, IndexError) as exc:
-            raise ValueError(f"{path}:{number}: malformed {f[0]} line ({exc})") from None
-        if len(r) != n or len(rest) != 6:
-            raise ValueError(f"{path}:{number}: {f[0]} line is cut short")
-        if geometry is None:
-            geometry = geom
-        elif not np.allclose(geometry, geom) or len(r) != len(ranges[0]):
-            raise ValueError(f"{path}:{number}: scan geometry differs from the first scan")
-        sec, _, frac = stamp.partition(".")
-        stamps.append(int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]))
-        ranges.append(r)
-        laser.append((lpose[0], lpose[1], lpose[2]))
-        odom.append((opose[0], opose[1], opose[2]))
-        if max_scans is not None and len(stamps) >= max_scans:
-            break
-    if geometry is None:
-        raise ValueError(f"{path}: no FLASER or ROBOTLASER1 records")
+    from scan2terrain.readers.carmen import CarmenFile
+
+    reader = CarmenFile(Path(path))
+    front = next(las for las in reader.lasers if las.topic == "/scan")
+    rec, beams = front.records, front.beams
+    keep = np.arange(0, len(rec), every)[:max_scans]
+    counts = rec.counts
+    same = (counts == counts[0]).all() and (beams.angle_min == beams.angle_min[0]).all()
+    if not same or not (beams.angle_increment == beams.angle_increment[0]).all():
+        raise ValueError(f"{path}: scan geometry differs from the first scan")
+    ranges = rec.ranges.reshape(len(rec), int(counts[0]))
     return CarmenLog(
-        stamps_ns=np.array(stamps, dtype=np.int64),
-        ranges=np.stack(ranges),
-        laser_poses=np.array(laser, dtype=np.float64),
-        odom_poses=np.array(odom, dtype=np.float64),
-        angle_min=geometry[0],
-        angle_increment=geometry[1],
+        stamps_ns=rec.stamps_ns[keep],
+        ranges=ranges[keep],
+        laser_poses=rec.laser_poses[keep],
+        odom_poses=rec.odom_poses[keep],
+        angle_min=float(beams.angle_min[0]),
+        angle_increment=float(beams.angle_increment[0]),
     )
 
 

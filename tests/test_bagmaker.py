@@ -332,6 +332,6 @@ def test_carmen_reads_robotlaser1_lines(tmp_path: Path) -> None:
     np.testing.assert_array_equal(log.odom_poses[0], [0.9, 2.0, 0.3])
     assert log.stamps_ns[0] == 1_134_864_629_500_000_000
     path.write_text("FLASER 3 1.0 2.0\n")
-    with pytest.raises(ValueError, match=r"x\.clf:1"):
+    with pytest.raises(ValueError, match=r"x\.clf: line 1: FLASER is cut short"):
         read_carmen(path)
     assert DEFAULT_LOG.is_file()

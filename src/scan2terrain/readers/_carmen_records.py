@@ -212,12 +212,13 @@ def open_text(path: Path) -> io.BufferedIOBase:
 
 
 def _blocks(f: io.BufferedIOBase) -> Iterator[bytes]:
-    """The stream's bytes, :data:`BLOCK_BYTES` at a time, the next block read (and
+    """The stream's bytes, at most :data:`BLOCK_BYTES` at a time (what one read of the file
+    gives: a cut-short stream fails after the blocks before the cut), the next block read (and
     decompressed: bz2 and zlib release the GIL) in a thread while this one is parsed."""
     with ThreadPoolExecutor(max_workers=1) as reader:
-        ahead = reader.submit(f.read, BLOCK_BYTES)
+        ahead = reader.submit(f.read1, BLOCK_BYTES)
         while block := ahead.result():
-            ahead = reader.submit(f.read, BLOCK_BYTES)
+            ahead = reader.submit(f.read1, BLOCK_BYTES)
             yield block
 
 
@@ -354,7 +355,7 @@ class _Builder:
             bad = ~(ranges >= 0) | ~np.isfinite(ranges)
         if bad.any():
             k = int(np.argmax(bad))
-            raise line.error(f"reading {k + 1} is {ranges[k]!r}: not a range (finite, >= 0)")
+            raise line.error(f"reading {k + 1} is {float(ranges[k])!r}: not a range (finite, >= 0)")
         self.lines.append(line.number)
         self.stamps.append(stamp)
         self.counts.append(ranges.size)
@@ -530,6 +531,8 @@ SICK_CODES = 81.83
 #: :data:`DEFAULT_RANGE_MAX`, is this share of all its readings or more was capped at it: that
 #: value is the log's no-return code (50.0 m on every ninetieth reading of the ACES log).
 SATURATED_SHARE = 0.001
+#: ... and at least this many readings (a short log's largest reading is no code).
+SATURATED_MIN = 100
 
 
 @dataclass(frozen=True)
@@ -616,14 +619,14 @@ def geometry(path: Path, log: Log, lasers: Lasers) -> Geometry:
             limit = f"CARMEN's default, no PARAM {name}"
             r = lasers.ranges
             largest = float(r.max()) if r.size else 0.0
-            if largest < DEFAULT_RANGE_MAX and (r == r.dtype.type(largest)).mean() >= (
-                SATURATED_SHARE
+            at_top = int(np.count_nonzero(r == r.dtype.type(largest)))
+            if largest < DEFAULT_RANGE_MAX and at_top >= max(
+                SATURATED_MIN, SATURATED_SHARE * r.size
             ):
                 given = np.full(k, largest)
-                share = (r == r.dtype.type(largest)).mean()
                 limit = (
-                    f"no PARAM {name}; the log's largest reading, on {share:.1%} of the "
-                    "readings: its no-return value"
+                    f"no PARAM {name}; the log's largest reading, {at_top:,} times "
+                    f"({at_top / r.size:.1%} of the readings): its no-return value"
                 )
     capped = sick & (given > SICK_CODES)
     range_max = np.where(capped, SICK_CODES, given)

@@ -226,9 +226,8 @@ def _laser(path: Path, log: Log, lasers: Lasers, topic: str, frame: str) -> _Las
         listed = ", ".join(f"{n} {v:g}" for n, v in zip(names, given, strict=True) if v is not None)
         mount_from = f"PARAM {listed}"
     elif constant:
-        mount = np.array(
-            [seen[:, 0].mean(), seen[:, 1].mean(), ref[2] + _wrap(seen[:, 2] - ref[2]).mean()]
-        )
+        yaw = ref[2] + _wrap(seen[:, 2] - ref[2]).mean()
+        mount = np.round([seen[:, 0].mean(), seen[:, 1].mean(), yaw], 9) + 0.0  # not -0.0
         mount_from = "the records' laser pose less their odometry pose, the same on every record"
     else:
         mount = np.zeros(3)
