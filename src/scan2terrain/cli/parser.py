@@ -265,7 +265,8 @@ def bag_commands(sub: Any) -> None:
     b = sub.add_parser(
         "bag2world",
         help="ROS1/ROS 2 bag or MCAP (LaserScan, PointCloud2 or a map) -> Gazebo world folder",
-        description="Read a bag with no ROS installed (ROS1 .bag, rosbag2 folder, .db3, .mcap), "
+        description="Read a bag with no ROS installed (ROS1 .bag, rosbag2 folder, .db3, .mcap, "
+        "or a CARMEN log: .clf, .log, plain, .gz or .bz2), "
         "pose every scan (tf, odometry, a TUM trajectory or one fixed pose), insert the scans "
         "into the voxel octree (OctoMap's model) and write the same world folder as "
         "octree2world, plus octree.bt. A bag with only a map topic goes the map2world way.",
@@ -278,7 +279,7 @@ def bag_commands(sub: Any) -> None:
         "--pose 0 0 0.3 0 0 0 --resolution 0.05\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    b.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
+    b.add_argument("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
     common(b)
     geometry_options(b)
     octree_options(b)
@@ -331,7 +332,7 @@ def bag_commands(sub: Any) -> None:
         "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    v.add_argument("source", type=Path, nargs="+", help="input cloud file(s) or bag")
+    v.add_argument("source", type=Path, nargs="+", help="input cloud file(s), bag, or CARMEN log")
     v.add_argument("target", type=Path, help="output cloud file (format by extension)")
     v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     v.add_argument("--config", type=Path, help="YAML config file; flags override it")
@@ -358,7 +359,7 @@ def bag_commands(sub: Any) -> None:
         epilog="example:\n  scan2terrain inspect fixtures/bags/bag1_sick_lms1xx_radar_tf\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    n.add_argument("bag", type=Path, nargs="+", help="bag file(s) or rosbag2 folder")
+    n.add_argument("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
     n.add_argument("--config", type=Path, help="YAML config file; flags override it")
     scan_options(n, bag=True)
     n.add_argument(
