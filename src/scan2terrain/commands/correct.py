@@ -34,22 +34,32 @@ SLICE = 0.25
 AGREEMENT_CELL = 0.05
 
 
-def correct_plan(bag: Bag, cfg: Config, plan: BagPlan) -> list[str]:
-    """Decide, compute and judge the correction of the plan's poses; sets ``plan.correction``
-    when corrected poses are kept. Returns the report's lines."""
+def decide(cfg: Config, plan: BagPlan) -> tuple[bool, str]:
+    """Whether the plan's poses are to be corrected, and why (or why not): ``inspect``'s line
+    and the report's."""
     from scan2terrain.readers.scans import odometry_only
 
     mode = cfg.scans.correct
-    if mode == "off" or not plan.scan_topics:
-        return []
+    if mode == "off":
+        return False, "correction: none (--correct off)"
     if plan.poses == "fixed":
-        return ["correction: none (one fixed pose: a stationary sensor)"]
-    if mode == "auto":
-        odometry, why = odometry_only(plan)
-        if not odometry:
-            return [f"correction: none ({why}; --correct on corrects them too)"]
-    else:
-        why = "--correct on"
+        return False, "correction: none (one fixed pose: a stationary sensor)"
+    if mode == "on":
+        return True, "--correct on"
+    odometry, why = odometry_only(plan)
+    if not odometry:
+        return False, f"correction: none ({why}; --correct on corrects them too)"
+    return True, why
+
+
+def correct_plan(bag: Bag, cfg: Config, plan: BagPlan) -> list[str]:
+    """Decide, compute and judge the correction of the plan's poses; sets ``plan.correction``
+    when corrected poses are kept. Returns the report's lines."""
+    if not plan.scan_topics:
+        return []
+    correct, why = decide(cfg, plan)
+    if not correct:
+        return [] if cfg.scans.correct == "off" else [why]
     return _correct(bag, cfg, plan, why)
 
 

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.commands.correct import correct_plan
+from scan2terrain.commands.correct import correct_plan, decide
 from scan2terrain.commands.maps import height_world, occupancy_world
 from scan2terrain.commands.replay import scan_replay
 from scan2terrain.commands.voxels import cast_hits, point_columns, voxels_world
@@ -319,6 +319,11 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
         else:
             lines.append("  bag2world would use:")
             lines += [f"    {r}" for r in plan.reasons]
+            if plan.scan_topics:
+                correct, why = decide(cfg, plan)
+                kept = ", kept if the beams agree better" if cfg.scans.correct == "auto" else ""
+                done = f"correction: scan matching and loop closure ({why}){kept}"
+                lines.append(f"    {done if correct else why}")
     return "\n".join(lines)
 
 
