@@ -188,6 +188,22 @@ def test_mount_from_the_records_when_no_param(tmp_path: Path) -> None:
     assert any("the records' laser pose less their odometry pose" in n for n in notes)
 
 
+def test_a_param_mount_the_records_disagree_with_is_used_and_reported(tmp_path: Path) -> None:
+    lines = ["PARAM robot_frontlaser_offset 0.3 nohost 0"]  # the records say 0.2
+    lines += [flaser(RANGES, compose(p, (0.2, 0, 0)), p, T0 + 0.2 * k) for k, p in enumerate(ODOM)]
+    path = write(tmp_path / "x.clf", lines)
+    with open_bag(path) as bag:
+        notes = bag.container.notes
+    assert notes[0] == (
+        "mount of laser on base_link (/tf_static): PARAM robot_frontlaser_offset 0.3 (x 0.3 m, "
+        "y 0 m, yaw 0 rad) (the records put the laser 0.100 m, 0.000 rad from there, the same on "
+        "every record: the PARAM is used)"
+    )
+    assert notes[1].startswith("raw CARMEN log")
+    for s, p in zip(scans(path), ODOM, strict=True):
+        np.testing.assert_allclose(s.origin[:2], compose(p, (0.3, 0, 0))[:2], atol=1e-6)
+
+
 def test_params_give_fov_resolution_and_max_range(tmp_path: Path) -> None:
     lines = [
         "PARAM laser_front_laser_fov 100 nohost 0",
@@ -550,6 +566,10 @@ DAMAGED: dict[str, tuple[list[str] | bytes, str]] = {
     "absurd fov PARAM": (
         ["PARAM laser_front_laser_fov 720 nohost 0", GOOD],
         "line 1: PARAM laser_front_laser_fov 720 is not in (0, 360] deg",
+    ),
+    "absurd offset PARAM": (
+        ["PARAM robot_frontlaser_offset 1e9 nohost 0", GOOD],
+        "line 1: PARAM robot_frontlaser_offset 1e+09 is not a laser's offset",
     ),
     "empty log": ([], "the log is empty"),
     "comments only": (["# CARMEN Logfile"], "no laser records (FLASER, RLASER, ROBOTLASER1"),

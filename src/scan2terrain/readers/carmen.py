@@ -300,8 +300,6 @@ class CarmenFile:
         self._named = named or path
         try:
             self.log, self.lasers = _parsed(self._named, _file_key(path))
-        except InputError:
-            raise
         except OSError as exc:
             raise InputError(self._named, f"cannot read the log ({exc.strerror or exc})") from exc
         self._topics: dict[str, _Topic] = {}
