@@ -34,9 +34,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from scan2terrain.slam import planar  # noqa: E402
 from tests import slamworld as sw  # noqa: E402
 from tests.test_correct import aligned_errors, flat_scans  # noqa: E402
+
+from scan2terrain.slam import planar  # noqa: E402
 
 MIT = ROOT / "fixtures/logs/raw_carmen_mit_csail/mit-csail.clf.bz2"
 TB3 = ROOT / "fixtures/bags/bag1_fuse_tb3_sim_scan_odom"

@@ -174,6 +174,8 @@ def test_inspect_synthetic_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert lines[lines.index("  bag2world would use:") + 1 :] == [
         "    topic /scan: the bag's only LaserScan/PointCloud2 topic",
         "    poses: tf, sensor frame(s) laser in fixed frame 'map'",
+        "    correction: none (tf has the map frame 'map' (poses a SLAM system made); "
+        "--correct on corrects them too)",
     ]
 
 
@@ -201,9 +203,11 @@ def test_inspect_says_why_bag2world_would_stop(capsys: pytest.CaptureFixture[str
     for topic in ("/sick_lms_1xx/scan", "sick_lms_1xx/scan"):  # the same topic (issue 25)
         code, stdout, err = run(capsys, "inspect", SICK, "--topic", topic, "--fixed-frame", "cloud")
         assert code == 0 and err == ""
-        assert stdout.splitlines()[-2:] == [
+        assert stdout.splitlines()[-3:] == [
             "    topics /sick_lms_1xx/scan: chosen (--topic)",
             "    poses: tf, sensor frame(s) cloud in fixed frame 'cloud'",
+            "    correction: none (the sensor does not move in the fixed frame 'cloud' (static "
+            "tf); --correct on corrects them too)",
         ]
 
 

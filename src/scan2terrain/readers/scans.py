@@ -365,6 +365,8 @@ def odometry_only(plan: BagPlan) -> tuple[bool, str]:
             if not edges[frame].static:
                 moving.add(frame)
             frame = edges[frame].parent
+    if not moving:
+        return False, f"the sensor does not move in the fixed frame '{fixed}' (static tf)"
     if len(moving) > 1:
         return False, f"tf has {len(moving)} moving frames above the sensor in '{fixed}'"
     return True, f"tf has no frame above the odometry frame '{fixed}'"

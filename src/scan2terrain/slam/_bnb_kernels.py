@@ -16,13 +16,26 @@ from scan2terrain._numba import numba as nb
 
 
 @nb.njit(cache=True, nogil=True)
-def _score(grid: np.ndarray, cx: np.ndarray, cy: np.ndarray, ox: int, oy: int) -> float:
+def _score(  # noqa: PLR0917 (a numba kernel)
+    grid: np.ndarray, cx: np.ndarray, cy: np.ndarray, ox: int, oy: int, width: int
+) -> float:
+    """Mean of ``grid`` at the points moved by (ox, oy). ``grid`` holds maxima over
+    ``width`` x ``width`` cells from each cell: a square that starts below the grid but
+    reaches into it is bounded by the first cell's (a square from there covers it)."""
     h, w = grid.shape
     total = 0.0
     for i in range(cx.size):
         x = cx[i] + ox
         y = cy[i] + oy
-        if 0 <= x < w and 0 <= y < h:
+        if x < 0:
+            if x + width <= 0:
+                continue
+            x = 0
+        if y < 0:
+            if y + width <= 0:
+                continue
+            y = 0
+        if x < w and y < h:
             total += grid[y, x]
     return total / max(cx.size, 1)
 
@@ -55,7 +68,7 @@ def branch_and_bound(
     for r in range(cells_x.shape[0]):
         for ox in range(0, span, step):
             for oy in range(0, span, step):
-                top_s[k] = _score(bounds[depth], cells_x[r], cells_y[r], ox, oy)
+                top_s[k] = _score(bounds[depth], cells_x[r], cells_y[r], ox, oy, step)
                 top_r[k] = r
                 top_x[k] = ox
                 top_y[k] = oy
@@ -87,7 +100,7 @@ def branch_and_bound(
             for dy in (0, half):
                 x, y = ox + dx, oy + dy
                 if x < span and y < span:
-                    cs[m] = _score(bounds[d - 1], cells_x[r], cells_y[r], x, y)
+                    cs[m] = _score(bounds[d - 1], cells_x[r], cells_y[r], x, y, half)
                     cx[m] = x
                     cy[m] = y
                     m += 1

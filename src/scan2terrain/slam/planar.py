@@ -37,6 +37,8 @@ from scan2terrain.slam.graph import Closure, PoseGraph
 from scan2terrain.slam.matching import LikelihoodGrid, LocalMap, thin
 
 Floats = NDArray[np.float64]
+#: Submaps' grids held at once (each about 1 MB at 0.1 m).
+SUBMAPS_HELD = 48
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,7 @@ def refine(poses: Floats, scans: list[Floats], s: Settings) -> Floats:
     if not parts:
         return poses
     whole = LocalMap(thin(np.concatenate(parts), s.cell))
-    out = poses.copy()
+    out: Floats = poses.copy()
     for i, scan in enumerate(scans):
         if len(scan) >= 10:
             pose, share = whole.icp(scan, poses[i], s.refine_distance)
@@ -225,6 +227,8 @@ def _close_loops(
             if sub is None:
                 members = np.flatnonzero(np.abs(travel - travel[a]) <= s.submap_reach)
                 sub = submaps[a] = _Submap(a, members, out.local, scans, s)
+                if len(submaps) > SUBMAPS_HELD:  # the oldest made goes first
+                    del submaps[next(iter(submaps))]
             guess = pose2.between(est[a], est[q])
             turn = min(s.max_turn_window, s.min_turn_window + s.turn_window_per_metre * gap[j])
             found = sub.grid.match(query, guess, float(window[j]), turn, s.min_score)
