@@ -108,13 +108,10 @@ def _correct(bag: Bag, cfg: Config, plan: BagPlan, why: str) -> list[str]:
     moved = np.hypot(*(result.poses[:, :2] - before[:, :2]).T)
     was, n_was = agreement(before, scans, AGREEMENT_CELL)
     now, n_now = agreement(result.poses, scans, AGREEMENT_CELL)
-    sec = result.seconds
     lines = [
-        f"{head}: {len(scans)} scans, {result.matched} placed by scan matching "
-        f"({sec['local']:.1f} s), {result.candidates} loop closure searches "
-        f"({sec['loops']:.1f} s): {result.accepted} closures kept, "
-        f"{len(result.closures) - result.accepted} dropped by the pose graph "
-        f"({sec['graph']:.1f} s)",
+        f"{head}: {len(scans)} scans, {result.matched} placed by scan matching, "
+        f"{result.candidates} loop closure searches: {result.accepted} closures kept, "
+        f"{len(result.closures) - result.accepted} dropped by the pose graph",
         f"correction: poses moved {moved.mean():.3f} m on average, {moved.max():.3f} m at most",
         f"correction: beams agreeing within 10 cm with the other spans' hits: "
         f"{100 * was:.1f}% recorded -> {100 * now:.1f}% corrected "
