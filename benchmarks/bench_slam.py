@@ -43,7 +43,7 @@ MIT = ROOT / "fixtures/logs/raw_carmen_mit_csail/mit-csail.clf.bz2"
 TB3 = ROOT / "fixtures/bags/bag1_fuse_tb3_sim_scan_odom"
 
 
-def _mit() -> tuple[np.ndarray, np.ndarray, list[np.ndarray], float]:
+def _mit() -> tuple[np.ndarray, list[np.ndarray], float]:
     from tests.carmen import read_carmen
 
     log = read_carmen(MIT)
@@ -53,7 +53,7 @@ def _mit() -> tuple[np.ndarray, np.ndarray, list[np.ndarray], float]:
         ok = (r > 0.05) & (r < 80.0)
         scans.append(np.c_[r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
     span = (log.stamps_ns[-1] - log.stamps_ns[0]) / 1e9
-    return log.stamps_ns, log.laser_poses, scans, span
+    return log.laser_poses, scans, span
 
 
 def correction_alone(repeat: int) -> None:
@@ -67,17 +67,17 @@ def correction_alone(repeat: int) -> None:
     ):
         rec = sw.simulate(name, scale=scale)
         label = f"{name}{'' if scale is None else f' x{scale:g}'} ({len(rec.stamps_ns)} scans)"
-        cases[label] = (rec.stamps_ns, rec.odom_laser_poses, flat_scans(rec), rec.duration, rec)
+        cases[label] = (rec.odom_laser_poses, flat_scans(rec), rec.duration, rec)
     head = (
         f"   {'recording':<38} {'duration':>9} {'wall':>7} {'speed':>7} {'local/scan':>11} "
         f"{'loops':>7} {'graph':>6} {'refine':>7} {'closures':>9}  error vs truth"
     )
     print(head)
-    for label, (stamps, prior, scans, span, rec) in cases.items():
+    for label, (prior, scans, span, rec) in cases.items():
         best, result = float("inf"), None
         for _ in range(repeat):
             t = time.perf_counter()
-            result = planar.correct(stamps, prior, scans)
+            result = planar.correct(prior, scans)
             best = min(best, time.perf_counter() - t)
         assert result is not None
         sec = result.seconds

@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.exporters.trajectory import tum_bytes
+from scan2terrain.slam.pose2 import between, compose, inverse, wrap
 from tests.bagmaker import (
     LASER_SCAN,
     ODOMETRY,
@@ -77,37 +78,8 @@ Segs = list[tuple[float, float, float, float]]
 # --- 2D poses (x, y, yaw) ------------------------------------------------------------------------
 
 
-def wrap(a: Floats | float) -> Any:
-    """Angles wrapped to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
-def compose(a: Floats, b: Floats) -> Floats:
-    """Pose ``a`` (.., 3) times pose ``b`` (.., 3), both x, y, yaw."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        [
-            a[..., 0] + c * b[..., 0] - s * b[..., 1],
-            a[..., 1] + s * b[..., 0] + c * b[..., 1],
-            a[..., 2] + b[..., 2],
-        ],
-        axis=-1,
-    )
-
-
-def inverse(a: Floats) -> Floats:
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        [-(c * a[..., 0] + s * a[..., 1]), s * a[..., 0] - c * a[..., 1], -a[..., 2]], axis=-1
-    )
-
-
-def relative(a: Floats, b: Floats) -> Floats:
-    """``inverse(a) * b`` with its yaw wrapped: b seen from a."""
-    r = compose(inverse(a), b)
-    r[..., 2] = wrap(r[..., 2])
-    return r
-
+# The planar rigid motions of the pose correction itself (yaw wrapped to [-pi, pi)).
+relative = between
 
 # --- scenes ---------------------------------------------------------------------------------------
 
@@ -835,14 +807,12 @@ class Recording:
     def laser_poses(self) -> Floats:
         """(K, 3) the laser in the scene frame (truth)."""
         p = compose(self.truth, self.mount_pose)
-        p[:, 2] = wrap(p[:, 2])
         return p
 
     @property
     def odom_laser_poses(self) -> Floats:
         """(K, 3) the laser in the odometry frame."""
         p = compose(self.odom, self.mount_pose)
-        p[:, 2] = wrap(p[:, 2])
         return p
 
     @property
@@ -850,7 +820,6 @@ class Recording:
         """(M, 3) the odometry frame in the scene frame at each sample: map -> odom, such that
         map -> odom -> base_link is the truth."""
         p = compose(self.samples_truth, inverse(self.samples_odom))
-        p[:, 2] = wrap(p[:, 2])
         return p
 
     @property
@@ -1051,7 +1020,6 @@ def simulate(
     if odom_start is not None:  # the same odometry seen from another odometry frame
         moved = compose(np.asarray(odom_start, dtype=np.float64), inverse(truth[0]))
         odom = compose(moved[None], odom)
-        odom[:, 2] = wrap(odom[:, 2])
     index = np.arange(0, m, odom_per_scan)
     mnt = np.array([mount[0], mount[1], mount[3]])
     sensor = compose(truth[index], mnt)

@@ -65,7 +65,7 @@ def test_drifting_odometry_is_corrected_to_the_truth(scene: str) -> None:
     rec = sw.simulate(scene)
     raw, _ = aligned_errors(rec.odom_laser_poses, rec.laser_poses)
     assert raw.max() > 0.5  # the odometry really drifts
-    result = planar.correct(rec.stamps_ns, rec.odom_laser_poses, flat_scans(rec))
+    result = planar.correct(rec.odom_laser_poses, flat_scans(rec))
     assert result.accepted >= 3  # the loop was closed
     err, yaw = aligned_errors(result.poses, rec.laser_poses)
     assert np.percentile(err, 95) <= 0.02, (np.percentile(err, 95), err.max())
@@ -82,7 +82,7 @@ def test_look_alike_corridors_are_not_closed() -> None:
     """Two corridors 4 m apart with the same niches at the same places: a closure between
     them would pull one onto the other. None is kept, and the trajectory stays true."""
     rec = sw.simulate("parallel_corridors")
-    result = planar.correct(rec.stamps_ns, rec.odom_laser_poses, flat_scans(rec))
+    result = planar.correct(rec.odom_laser_poses, flat_scans(rec))
     assert result.candidates > 0  # searches were made
     for c in result.closures:
         truth = pose2.between(rec.laser_poses[c.earlier], rec.laser_poses[c.later])

@@ -104,7 +104,7 @@ def _correct(bag: Bag, cfg: Config, plan: BagPlan, why: str) -> list[str]:
     order = order[keep]
     before = np.asarray(prior)[order]
     scans = [flat[i] for i in order]
-    result = planar.correct(times[keep], before, scans)
+    result = planar.correct(before, scans)
     moved = np.hypot(*(result.poses[:, :2] - before[:, :2]).T)
     was, n_was = agreement(before, scans, AGREEMENT_CELL)
     now, n_now = agreement(result.poses, scans, AGREEMENT_CELL)

@@ -87,11 +87,6 @@ class Correction:
     def accepted(self) -> int:
         return sum(c.kept for c in self.closures)
 
-    @property
-    def rejected(self) -> int:
-        """Searches that found no verified match, and closures the graph dropped."""
-        return self.candidates - self.accepted
-
 
 def _step_sigmas(steps: Floats) -> Floats:
     """Noise of a local matching step: a floor plus a share of the motion."""
@@ -142,9 +137,7 @@ class _Submap:
         self.map = LocalMap(pts)
 
 
-def correct(
-    stamps: NDArray[np.int64], prior: Floats, scans: list[Floats], s: Settings | None = None
-) -> Correction:
+def correct(prior: Floats, scans: list[Floats], s: Settings | None = None) -> Correction:
     """Corrected poses of the scans (points (N, 2) in each scan's own frame) whose prior poses
     are ``prior`` (K, 3), in time order."""
     s = s or Settings()
@@ -166,7 +159,6 @@ def correct(
         out.poses = refine(out.poses, thinned, s)
     t4 = time.perf_counter()
     out.seconds = {"local": t1 - t0, "loops": t2 - t1, "graph": t3 - t2, "refine": t4 - t3}
-    del stamps
     return out
 
 
