@@ -206,6 +206,7 @@ def _close_loops(
         query = _query_points(q, travel, out.local, scans, s)
         if len(query) < 20:
             continue
+        coarse = thin(query, s.grid_resolution)  # the search needs one point per grid cell
         tried: list[float] = []
         for j in near[np.argsort(dist[near], kind="stable")]:
             a = int(old[j])
@@ -223,7 +224,7 @@ def _close_loops(
                     del submaps[next(iter(submaps))]
             guess = pose2.between(est[a], est[q])
             turn = min(s.max_turn_window, s.min_turn_window + s.turn_window_per_metre * gap[j])
-            found = sub.grid.match(query, guess, float(window[j]), turn, s.min_score)
+            found = sub.grid.match(coarse, guess, float(window[j]), turn, s.min_score)
             if found is None:
                 continue
             pose, _ = sub.map.icp(query, found.pose, 2 * s.grid_resolution)
