@@ -191,6 +191,29 @@ def test_bag2world_world_matches_the_truth_within_a_cell(
     assert not (worlds["off"] / "trajectory_raw.tum").exists()
 
 
+def test_fidelity_poses_the_recording_as_bag2world_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], loop_bag: tuple[sw.Recording, Path]
+) -> None:
+    """``fidelity WORLD BAG`` corrects a raw recording's poses as bag2world did when it wrote
+    the world (``--correct`` is shared): the same beams, the same figure; ``--correct off``
+    replays the odometry's smear in it."""
+    _, bag = loop_bag
+    code, report = run(capsys, "bag2world", bag, "-o", tmp_path / "w", "--insert", "endpoints")
+    assert code == 0, report
+    world = tmp_path / "w" / "world_gz.sdf"
+    figures = {}
+    for mode in ("auto", "off"):
+        code, got = run(capsys, "fidelity", world, bag, "-o", tmp_path / mode, "--correct", mode)
+        assert code == 0, got
+        line = next(x for x in got.splitlines() if "recorded beams replayed" in x)
+        figures[mode] = float(line.split("replayed: ")[1].split("%")[0])
+    assert figures["auto"] == _within_10cm(report)
+    assert figures["off"] < figures["auto"] - 30, figures
+    assert (tmp_path / "auto" / "trajectory.tum").read_bytes() == (
+        tmp_path / "w" / "trajectory.tum"
+    ).read_bytes()
+
+
 def _agreement(report: str) -> tuple[str, str]:
     line = next(x for x in report.splitlines() if "beams agreeing" in x)
     was, now = line.split(": ")[-1].split(" -> ")

@@ -377,7 +377,8 @@ def fidelity_command(sub: Any) -> None:
         "fidelity",
         help="score any Gazebo world against a recording: its beams replayed in the world",
         description="Cast every recorded beam (a bag's LaserScan/PointCloud2, posed as "
-        "bag2world poses them, or an OctoMap scan file) from its recorded sensor pose into "
+        "bag2world poses them, --correct included, or an OctoMap scan file) from its sensor "
+        "pose into "
         "the world's collision geometry as the simulator builds it (meshes: STL, OBJ, DAE; "
         "boxes, cylinders, spheres, planes, polylines, heightmaps; model:// includes through "
         "the models/ folder beside the world, GZ_SIM_RESOURCE_PATH, IGN_GAZEBO_RESOURCE_PATH "

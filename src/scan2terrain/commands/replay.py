@@ -104,17 +104,24 @@ class Replay:
         return files, notes
 
 
+def posed_by(pose_source: str, raw: PoseCorrection | None) -> str:
+    """Where the poses came from, saying when they were corrected."""
+    return (
+        pose_source
+        if raw is None
+        else f"{pose_source}, corrected by scan matching and loop closure"
+    )
+
+
 def scan_replay(
     recorder: BeamRecorder, pose_source: str, cfg: Config, raw: PoseCorrection | None = None
 ) -> Replay:
     """The replay of the scans a world is made from, for the folder writer; ``raw``: the
     correction applied to their poses."""
-    if raw is not None:
-        pose_source += ", corrected by scan matching and loop closure"
     return Replay(
         recorder.beams(),
         raw=raw,
-        pose_source=pose_source,
+        pose_source=posed_by(pose_source, raw),
         fidelity=cfg.output.fidelity,
         # Walls stand on a floor at z = 0; terrain and voxels keep the map's heights.
         floor=0.0 if cfg.octree.grid == "occupancy" and cfg.world.geometry != "voxels" else None,
@@ -230,12 +237,13 @@ def fidelity_command(
 
     refuse_existing(out, overwrite, (world, *recording))
     geometry = read_world(Path(world), simulator=simulator)  # type: ignore[arg-type]
-    recorder, pose_source, notes, source = record(recording, cfg)
-    beams = recorder.beams()
+    got = record(recording, cfg)
+    pose_source, source = got.pose_source, got.source
+    beams = got.recorder.beams()
     if len(beams.scan) == 0:
         raise InputError(source, "no scan has a beam with a return to replay")
-    replay = Replay(beams, pose_source, floor=None)
-    files, _ = replay.files([])  # trajectory.tum
+    replay = Replay(beams, pose_source, floor=None, raw=got.raw)
+    files, _ = replay.files([])  # trajectory.tum (and trajectory_raw.tum when corrected)
     report = fidelity(
         geometry.vertices,
         geometry.triangles,
@@ -246,7 +254,7 @@ def fidelity_command(
     sampled = len(beams.scan) < beams.returns
     files["fidelity.yaml"] = fidelity_yaml([report], beams_used=len(beams.scan), sampled=sampled)
     files["fidelity.png"] = fidelity_png(report)
-    result = Result(out, notes=[summary(report), *notes, *geometry.parts])
+    result = Result(out, notes=[summary(report), *got.notes, *geometry.parts])
     result.headline = f"a replay of {source.name} in {Path(world).name}"
     if (report.overall.within_10cm or 0.0) < WARN_BELOW:
         warnings.warn(advice(report), FidelityWarning, stacklevel=2)
@@ -254,9 +262,20 @@ def fidelity_command(
     return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
-def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, list[str], Path]:
-    """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder: the
-    pose source, notes, and the file read (a bag's, in a rosbag2 folder)."""
+@dataclass
+class Recorded:
+    """A recording's posed scans, as :func:`record` read them."""
+
+    recorder: BeamRecorder
+    pose_source: str
+    notes: list[str]
+    source: Path  #: the file read (a bag's, in a rosbag2 folder)
+    raw: PoseCorrection | None = None  #: the correction applied to the poses (scans.correct)
+
+
+def record(recording: Sequence[Path], cfg: Config) -> Recorded:
+    """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder, posed
+    as bag2world poses them: with ``scans.correct`` applied the same way."""
     from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
     from scan2terrain.readers.points import within_reach
     from scan2terrain.steps import refuse_unused, skipped_notes
@@ -268,7 +287,8 @@ def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, l
             recorder.add(scan, within_reach(scan.points, scan.origin, cfg.octree.max_range))
         if recorder.scans == 0:
             raise InputError(first, "no scan in the file")
-        return recorder, "the scan file's NODE poses", [f"scans: {recorder.scans}"], first
+        return Recorded(recorder, "the scan file's NODE poses", [f"scans: {recorder.scans}"], first)
+    from scan2terrain.commands.correct import correct_plan
     from scan2terrain.readers.bag import open_bag
     from scan2terrain.readers.scans import plan_bag, posed_scans
     from scan2terrain.types import ScanCounts
@@ -277,10 +297,14 @@ def record(recording: Sequence[Path], cfg: Config) -> tuple[BeamRecorder, str, l
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if not plan.scan_topics:
             raise InputError(bag.path, "no LaserScan or PointCloud2 topic to replay")
+        corrected = correct_plan(bag, cfg, plan)
         counts = ScanCounts()
         for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
             recorder.add(scan)
             counts.inserted += 1
         refuse_unused(bag.path, counts, "replayed")
-    notes = [*plan.reasons, f"scans: {counts.inserted} replayed", *skipped_notes(counts)]
-    return recorder, plan.pose_source, notes, bag.path
+    notes = [*plan.reasons, *corrected, f"scans: {counts.inserted} replayed"]
+    pose_source = posed_by(plan.pose_source, plan.correction)
+    return Recorded(
+        recorder, pose_source, [*notes, *skipped_notes(counts)], bag.path, plan.correction
+    )

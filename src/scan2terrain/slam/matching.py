@@ -48,7 +48,8 @@ def thin(points: NDArray[np.floating], cell: float) -> NDArray[np.float64]:
         [np.bincount(inverse, p[:, 0], len(counts)), np.bincount(inverse, p[:, 1], len(counts))],
         axis=1,
     )
-    return sums / counts[:, None]
+    means: NDArray[np.float64] = sums / counts[:, None]
+    return means
 
 
 class LocalMap:
