@@ -27,7 +27,7 @@ Measured, and printed as tables:
 2. Where bag2world's time goes: one run with every stage timed by wrapping the functions
    bag2world calls (open_bag, plan_bag with its tf pass, rosbags' raw read and deserialise,
    pointcloud2_xyz, the rest of posed_scans = pose lookup + transform, insert_endpoints,
-   occupied_and_free + .bt, voxels_world = projection + export).
+   occupied_and_free + .bt, voxels_folder + write_world_folder = projection + export).
 3. Peak memory against recording length: bag2world on one lap and on ten laps of the same place
    (1,000 and 10,000 clouds; --quick: 100 and 1,000), each in a fresh process (through a small
    launcher, so ru_maxrss is the child's own), ru_maxrss after the run. Target: the long bag
@@ -486,7 +486,7 @@ STAGES = (
     ("insert", "octree insert_endpoints"),
     ("loop", "bag_octree loop (counts, progress, _insert)"),
     ("voxels", "occupied_and_free + .bt bytes"),
-    ("export", "project + export (voxels_world)"),
+    ("export", "project + export (voxels_folder, write_world_folder)"),
 )
 
 
@@ -498,6 +498,7 @@ def stage_clock(acc: dict[str, float]) -> Iterator[None]:
     from rosbags.highlevel import AnyReader
 
     from scan2terrain.commands import scans as scan_commands
+    from scan2terrain.commands import voxels as voxels_commands
     from scan2terrain.octree import bt
     from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.readers import bag as bagmod
@@ -559,7 +560,8 @@ def stage_clock(acc: dict[str, float]) -> Iterator[None]:
         (scan_commands, "bag_octree", bag_octree),
         (VoxelOctree, "occupied_and_free", lambda f: call(f, "voxels")),
         (bt, "bt_bytes", lambda f: call(f, "voxels")),
-        (scan_commands, "voxels_world", lambda f: call(f, "export")),
+        (voxels_commands, "voxels_folder", lambda f: call(f, "export")),
+        (scan_commands, "write_world_folder", lambda f: call(f, "export")),
     ]
     saved = []
     for owner, name, wrap in patches:

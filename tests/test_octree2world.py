@@ -19,6 +19,7 @@ from scan2terrain.octree.bt import read_bt
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.octomap_scan import read_scans
 from scan2terrain.readers.poses import rpy_matrix
+from scan2terrain.world.folder import write_world_folder
 from tests.conftest import FIXTURES
 from tests.gazebo_harness import probe_world, terrain_height
 from tests.test_gazebo_worlds import H, check_world
@@ -262,18 +263,13 @@ def test_octree_file_is_made_beside_the_world_with_the_same_bytes(tmp_path: Path
     """The .bt bytes come from a second thread while the world is built: the file holds the
     same bytes as bt_bytes makes alone, and the world is the same as without it."""
     from scan2terrain.octree.bt import bt_bytes
-    from scan2terrain.steps import octree_file
 
     keys, occupied = _wall_voxels()
     cfg = load_config(None, {})
-    with octree_file(0.1, keys, occupied) as extra:
-        voxels.voxels_world(
-            keys, occupied, 0.1, source=GEB079, out=tmp_path / "a", cfg=cfg, overwrite=False,
-            extra=extra,
-        )  # fmt: skip
-    voxels.voxels_world(
-        keys, occupied, 0.1, source=GEB079, out=tmp_path / "b", cfg=cfg, overwrite=False
-    )
+    with voxels.octree_folder(voxels.Voxels(keys, occupied, 0.1), source=GEB079, cfg=cfg) as a:
+        write_world_folder(a, tmp_path / "a", cfg, overwrite=False)
+    b = voxels.voxels_folder(keys, occupied, 0.1, source=GEB079, cfg=cfg)
+    write_world_folder(b, tmp_path / "b", cfg, overwrite=False)
     bt = (tmp_path / "a/octree.bt").read_bytes()
     assert bt == bt_bytes(resolution=0.1, keys=keys, occupied=occupied)
     for name in ("map/map.pgm", "world_gz.sdf", "preview.png"):
@@ -291,10 +287,9 @@ def test_a_failing_octree_file_fails_the_world_and_writes_nothing(tmp_path: Path
         pytest.raises(ValueError, match="distinct"),
         octree_file(0.1, twice, np.concatenate([occupied, occupied[:1]])) as extra,
     ):
-        voxels.voxels_world(
-            keys, occupied, 0.1, source=GEB079, out=tmp_path / "w",
-            cfg=load_config(None, {}), overwrite=False, extra=extra,
-        )  # fmt: skip
+        cfg = load_config(None, {})
+        folder = voxels.voxels_folder(keys, occupied, 0.1, source=GEB079, cfg=cfg)
+        write_world_folder(folder.with_extra(extra), tmp_path / "w", cfg, overwrite=False)
     assert not (tmp_path / "w").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 

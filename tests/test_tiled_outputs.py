@@ -32,7 +32,7 @@ from scan2terrain.exporters.tiles import TileSpec, make_tiled_heightmap, tile_sp
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.dem import read_dem
 from scan2terrain.types import HeightGrid, OccupancyGrid, Pose2D
-from scan2terrain.world.folder import Result
+from scan2terrain.world.folder import Result, write_world_folder
 from tests.conftest import write_map
 from tests.gazebo_harness import HeightmapProbe, probe_world, terrain_height, vertex_world_xy
 from tests.readers.test_dem import write_geotiff
@@ -72,7 +72,9 @@ def height_world(
     **overrides: object,
 ) -> Result:
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
-    return maps.height_world(grid, Path("hills.xyz"), out, config(**overrides), overwrite=False)
+    cfg = config(**overrides)
+    folder = maps.height_folder(grid, Path("hills.xyz"), cfg)
+    return write_world_folder(folder, out, cfg, overwrite=False)
 
 
 def centres(
@@ -406,11 +408,14 @@ def test_failure_mid_way_leaves_nothing_behind(
     monkeypatch.setattr(sdf, "model_sdf", failing)
     grid = HeightGrid(rolling(70, 45), np.ones((70, 45), dtype=bool), RES, ORIGIN)
     with pytest.raises(OSError, match="disk full"):
-        maps.height_world(grid, Path("hills.xyz"), old, config(), overwrite=True)
+        write_world_folder(
+            maps.height_folder(grid, Path("hills.xyz"), config()), old, config(), overwrite=True
+        )
     assert calls == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]
     assert [p.name for p in old.iterdir()] == ["keep.txt"]
     calls = 0
     with pytest.raises(OSError, match="disk full"):
-        maps.height_world(grid, Path("hills.xyz"), tmp_path / "new", config(), overwrite=False)
+        folder = maps.height_folder(grid, Path("hills.xyz"), config())
+        write_world_folder(folder, tmp_path / "new", config(), overwrite=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]

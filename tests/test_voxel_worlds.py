@@ -14,6 +14,7 @@ import trimesh
 import yaml
 
 from scan2terrain.cli import main
+from scan2terrain.world.folder import write_world_folder
 from tests.conftest import FIXTURES
 from tests.gazebo_harness import probe_shapes
 from tests.physics_harness import drive_robot, drop_probes
@@ -412,7 +413,7 @@ def test_floors_are_not_taken_for_scan_planes(tmp_path: Path) -> None:
     """A floor seen from 0.2 m above (free voxels over it) and a floor of end points only (no
     free voxel) stay floors, one voxel thick; map/ shows their columns as free, never all
     unknown."""
-    from scan2terrain.commands.voxels import voxels_world
+    from scan2terrain.commands.voxels import voxels_folder
     from scan2terrain.config import load_config
 
     xs, ys = np.meshgrid(np.arange(32760, 32780), np.arange(32760, 32780))
@@ -424,10 +425,8 @@ def test_floors_are_not_taken_for_scan_planes(tmp_path: Path) -> None:
         ("endpoints", floor, np.ones(len(floor), bool)),
     ):
         out = tmp_path / name
-        voxels_world(
-            keys.astype(np.uint16), occupied, 0.1, source=GEB079, out=out, cfg=cfg,
-            overwrite=False,
-        )  # fmt: skip
+        folder = voxels_folder(keys.astype(np.uint16), occupied, 0.1, source=GEB079, cfg=cfg)
+        write_world_folder(folder, out, cfg, overwrite=False)
         lo, hi, _ = _walls(out)
         assert (lo, hi) == pytest.approx((-0.1, 0.0), abs=1e-6), name
         grid = _map(out)

@@ -31,6 +31,7 @@ from scan2terrain.exporters.meshfile import dae_bytes, obj_bytes, stl_bytes
 from scan2terrain.geometry.mesh import Mesh, boxes_mesh
 from scan2terrain.readers.world import MAX_TRIANGLES, WorldGeometry, read_world
 from scan2terrain.types import HeightGrid, Pose2D
+from scan2terrain.world.folder import write_world_folder
 from tests.conftest import FIXTURES, MAPS, write_map
 from tests.gazebo_harness import (
     HeightmapProbe,
@@ -347,7 +348,7 @@ def test_terrain_tiles_read_back(tmp_path: Path) -> None:
         },
     )
     out = tmp_path / "out"
-    maps.height_world(grid, Path("hills.xyz"), out, cfg, overwrite=False)
+    write_world_folder(maps.height_folder(grid, Path("hills.xyz"), cfg), out, cfg, overwrite=False)
     checked = check_world_file(out / "world_gz.sdf", "gz", tmp_path / "probe")
     assert checked["heightmap"] >= 6
 

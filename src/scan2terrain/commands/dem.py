@@ -32,9 +32,9 @@ from scan2terrain.steps import (
 from scan2terrain.types import (
     HeightGrid,
 )
-from scan2terrain.world.folder import Result
+from scan2terrain.world.folder import Result, write_world_folder
 from scan2terrain.world.names import terrain_name
-from scan2terrain.world.terrain import write_terrain
+from scan2terrain.world.terrain import terrain_folder
 
 if TYPE_CHECKING:
     from scan2terrain.readers.dem import Dem
@@ -118,17 +118,14 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
             "gz-sim >= 7 with GDAL can load the GeoTIFF itself: world_gz_dem.sdf (model "
             f"{name}; not checked here: the test harness's gz-common has no DEM support)"
         )
-    result = write_terrain(
-        out,
+    folder = terrain_folder(
         cfg,
-        overwrite=overwrite,
         source=source,
         hm=hm,
         # Texture blend heights, in the heightmap's own heights (0 = its lowest point).
         levels=(0.0, hm.z_range / 2, hm.z_range),
         map_out=None,
         preview=make_preview(grey8(before, z0, top), grey8(heights, z0, top), cfg, occupancy=False),
-        extra=extra,
         comment_extra="".join(f" {n}\n" for n in notes),
         spawn=spawn_for(
             above + np.float32(z0),
@@ -139,8 +136,8 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
             around=terrain_around(hm, 1, z0),
         ),
     )
-    result.notes.extend(notes)
-    return result
+    folder = folder.noted(then=notes).with_extra(extra)
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain, *, with_classic: bool) -> list[str]:

@@ -5,10 +5,11 @@ map2world:   read map YAML -> classify -> invert/canvas -> filter -> align to wo
 image2world: read image -> luminance -> invert/canvas -> filter -> align -> heights -> ... (same)
 walls:       with world.geometry mesh | boxes | polylines, an occupancy grid's occupied cells
              -> outlines (mesh, polylines) or merged boxes -> one static model per simulator
-             (world.walls_world)
+             (world.walls_folder)
 
-:func:`occupancy_world` (a trinary grid) and :func:`height_world` (a 2.5D grid) are how every
-command's grid becomes a world folder. Any size: a terrain wider or taller than
+:func:`occupancy_folder` (a trinary grid) and :func:`height_folder` (a 2.5D grid) are how every
+command's grid becomes a world folder, computed; each command writes it once
+(:func:`~scan2terrain.world.folder.write_world_folder`). Any size: a terrain wider or taller than
 ``terrain.max_side`` samples is written as heightmap tiles (gz-sim only), and a map wider or
 taller than ``output.map_max_side`` cells as map tiles.
 """
@@ -16,7 +17,6 @@ taller than ``output.map_max_side`` cells as map tiles.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -51,12 +51,9 @@ from scan2terrain.types import (
     Pose2D,
     Start,
 )
-from scan2terrain.world.folder import Result
-from scan2terrain.world.terrain import write_terrain
-from scan2terrain.world.walls import walls_world
-
-if TYPE_CHECKING:
-    from scan2terrain.world.folder import ExtraFiles
+from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
+from scan2terrain.world.terrain import terrain_folder
+from scan2terrain.world.walls import walls_folder
 
 
 def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
@@ -68,25 +65,23 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     meta, grid = read_map_yaml(yaml_path, max_pixels=cfg.max_pixels)
     refuse_existing(out, overwrite, (meta.image,))  # the image may live elsewhere
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    return occupancy_world(grid.with_data(trinary), Path(yaml_path), out, cfg, overwrite=overwrite)
+    folder = occupancy_folder(grid.with_data(trinary), Path(yaml_path), cfg)
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
-def occupancy_world(
+def occupancy_folder(
     grid: OccupancyGrid,
     source: Path,
-    out: Path,
     cfg: Config,
     *,
-    overwrite: bool,
-    extra: ExtraFiles | None = None,
     start: Start | None = None,
     scans: bool = False,
-) -> Result:
+) -> WorldFolder:
     """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
-    (unknown policy) -> heightmap -> worlds, map_server map, preview. ``extra`` files (relative
-    name -> bytes) are written into the same folder; ``start`` is where the robot started
-    (the spawn pose is searched from there; None: from the map origin); ``scans``: the grid
-    was made from scans (walls' faces where their end points lie, ``world.wall_faces``)."""
+    (unknown policy) -> heightmap -> worlds, map_server map, preview. ``start`` is where the
+    robot started (the spawn pose is searched from there; None: from the map origin);
+    ``scans``: the grid was made from scans (walls' faces where their end points lie,
+    ``world.wall_faces``)."""
     cfg = cfg.for_grid("occupancy", scans=scans)
     if cfg.world.geometry == "heightmap":
         heightmap_options(cfg)
@@ -94,14 +89,11 @@ def occupancy_world(
     trinary, origin = place_on_canvas(trinary, grid.origin, grid.resolution, cfg, fill=UNKNOWN)
     filtered = filter_occupancy(trinary, cfg)
     if cfg.world.geometry != "heightmap":
-        return walls_world(
+        return walls_folder(
             grid.with_data(filtered, origin),
             source,
-            out,
             cfg,
-            overwrite=overwrite,
             preview=make_preview(trinary, filtered, cfg, occupancy=True),
-            extra=extra,
             start=start,
         )
 
@@ -112,16 +104,13 @@ def occupancy_world(
     )
     pad = unknown_level(t.unknown, wall_height=t.height, unknown_height=t.unknown_height)
     hm = terrain_layout(heights, grid.resolution, world_origin, cfg, pad_height=pad)
-    return write_terrain(
-        out,
+    return terrain_folder(
         cfg,
-        overwrite=overwrite,
         source=source,
         hm=hm,
         levels=(0.0, pad, t.height),
         map_out=OccupancyGrid(aligned, grid.resolution, world_origin),
         preview=make_preview(trinary, filtered, cfg, occupancy=True),
-        extra=extra,
         spawn=spawn_for(
             heights,
             grid.resolution,
@@ -136,19 +125,12 @@ def occupancy_world(
     )
 
 
-def height_world(
-    grid: HeightGrid,
-    source: Path,
-    out: Path,
-    cfg: Config,
-    *,
-    overwrite: bool,
-    extra: ExtraFiles | None = None,
-    start: Start | None = None,
-) -> Result:
+def height_folder(
+    grid: HeightGrid, source: Path, cfg: Config, *, start: Start | None = None
+) -> WorldFolder:
     """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known
     height. Filters: the plain median (``filter.size``) when filtering is on, as heights are
-    not labels. ``start`` as for :func:`occupancy_world`."""
+    not labels. ``start`` as for :func:`occupancy_folder`."""
     cfg = heightmap_only(cfg, "a height grid")
     heights = grid.heights
     known = grid.known
@@ -160,10 +142,8 @@ def height_world(
     aligned, world_origin = axis_align(filled, grid.origin, grid.resolution, fill=floor)
     hm = terrain_layout(aligned, grid.resolution, world_origin, cfg, pad_height=floor)
     top = float(aligned.max(initial=floor))
-    return write_terrain(
-        out,
+    return terrain_folder(
         cfg,
-        overwrite=overwrite,
         source=source,
         hm=hm,
         levels=(floor, (floor + top) / 2, top),
@@ -171,7 +151,6 @@ def height_world(
         preview=make_preview(
             grey8(before, floor, top), grey8(filled, floor, top), cfg, occupancy=False
         ),
-        extra=extra,
         spawn=spawn_for(
             aligned,
             grid.resolution,
@@ -209,10 +188,8 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
     hm = terrain_layout(heights, res, world_origin, cfg, pad_height=0.0)
     top = float(heights.max(initial=0.0))
     levels = (0.0, top / 2, top)
-    return write_terrain(
-        out,
+    folder = terrain_folder(
         cfg,
-        overwrite=overwrite,
         source=Path(image_path),
         hm=hm,
         levels=levels,
@@ -227,6 +204,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
             around=terrain_around(hm, cfg.terrain.upsample, 0.0),
         ),
     )
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 # --- walls (world.geometry mesh | boxes | polylines) -----------------------------------------

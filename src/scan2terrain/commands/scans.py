@@ -1,13 +1,14 @@
 """The commands that start from sensor data: bag2world, cloud2world, convert, inspect.
 
-bag2world:   open bag -> plan (topics, fixed frame, pose source) -> tf/odometry pass ->
-             posed scans, streamed -> octree (ray cast, or end points only) -> voxels_world
-             (a map topic instead goes straight to occupancy_world, as map2world)
-cloud2world: read cloud files -> local origin -> octree -> voxels_world
+bag2world:   open bag -> plan (topics, fixed frame, pose source) -> correction -> posed
+             scans, streamed -> octree (ray cast, or end points only) -> octree_folder
+             (a map topic instead goes straight to occupancy_folder, as map2world)
+cloud2world: read cloud files -> local origin -> octree -> octree_folder
 convert:     cloud file or bag -> one merged cloud file (hits only, fixed frame)
 inspect:     a bag's topics, types, counts, duration, tf frames, and the plan with its reasons
 
-Like pipeline.py, this module composes the stages and owns no algorithm.
+Each command computes its world folder, then writes it once; this module composes the stages
+and owns no algorithm.
 """
 
 from __future__ import annotations
@@ -21,9 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.commands.correct import correct_plan, decide
-from scan2terrain.commands.maps import height_world, occupancy_world
+from scan2terrain.commands.maps import height_folder, occupancy_folder
 from scan2terrain.commands.replay import scan_replay
-from scan2terrain.commands.voxels import cast_hits, point_columns, voxels_world
+from scan2terrain.commands.voxels import Voxels, cast_hits, octree_folder, point_columns
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.readers.points import hits_of, local_origin, start_of
@@ -33,13 +34,12 @@ from scan2terrain.steps import (
     ScanProgress,
     grid_options,
     new_tree,
-    octree_file,
     refuse_existing,
     refuse_unused,
     skipped_notes,
 )
 from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
-from scan2terrain.world.folder import Result
+from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 
 if TYPE_CHECKING:
     from scan2terrain.octree.tree import VoxelOctree
@@ -93,13 +93,7 @@ def bag2world(
 ) -> Result:
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.scans import (
-        height_grid_from_message,
-        is_height_grid,
-        map_message,
-        occupancy_from_message,
-        plan_bag,
-    )
+    from scan2terrain.readers.scans import plan_bag
 
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
@@ -110,64 +104,67 @@ def bag2world(
             planned = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if planned.scan_topics:  # a map, or a trajectory only, is read as without --stream
             streamed = stream.stream_bag(bags, cfg, stream_progress)
-            return stream.streamed_world(streamed, Path(bags[0]), out, cfg, overwrite=overwrite)
+            folder = stream.streamed_folder(streamed, Path(bags[0]), cfg)
+            return write_world_folder(folder, out, cfg, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         corrected = correct_plan(bag, cfg, plan)
-        if plan.trajectory_only:
-            return _trajectory_folder(bag, plan, out, cfg, overwrite=overwrite)
-        if plan.map_topic is not None:
-            msg, _ = map_message(bag, plan, cfg.scans.map_message)
-            if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
-                try:
-                    heights = height_grid_from_message(msg)
-                except ValueError as exc:
-                    raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
-                result = height_world(heights, bag.path, out, cfg, overwrite=overwrite)
-                rows, cols = heights.shape
-                result.notes[:0] = [*plan.reasons, f"height grid: {cols} x {rows} cells"]
-                return result
-            try:
-                data, res, (x, y, yaw) = occupancy_from_message(msg)
-                grid = OccupancyGrid(data, res, Pose2D(x, y, yaw))
-            except ValueError as exc:
-                raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
-            from scan2terrain.grids import to_trinary
-
-            trinary = to_trinary(
-                grid.data, occupied_above=MAP_OCCUPIED_ABOVE, free_below=MAP_FREE_BELOW
+        if plan.trajectory_only or plan.map_topic is not None:
+            folder = (
+                _trajectory_folder(bag, plan, cfg)
+                if plan.trajectory_only
+                else _map_topic_folder(bag, plan, cfg)
             )
-            result = occupancy_world(
-                grid.with_data(trinary), bag.path, out, cfg, overwrite=overwrite
-            )
-            # What was read first, then what the writer said (tiles, Classic left out...).
-            result.notes[:0] = [*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"]
-            return result
+            return write_world_folder(folder, out, cfg, overwrite=overwrite)
         columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
         recorder = BeamRecorder()
         tree, ingest = bag_octree(bag, cfg, plan, progress, columns, recorder=recorder)
-    keys, occupied = tree.occupied_and_free()
-    resolution = tree.resolution
+    voxels = Voxels.taken(tree)
     del tree  # its store is not needed for the world: free it first
     replay = scan_replay(recorder, plan.pose_source, cfg, plan.correction)
-    with octree_file(resolution, keys, occupied) as extra:
-        result = voxels_world(
-            keys, occupied, resolution, source=bag.path, out=out, cfg=cfg,
-            overwrite=overwrite, extra={**extra, "replay": replay}, start=ingest.start,
-            columns=columns,
-        )  # fmt: skip
-    result.notes[:0] = [*ingest.notes, *corrected]
-    return result
+    with octree_folder(
+        voxels, source=bag.path, cfg=cfg, start=ingest.start, columns=columns, replay=replay,
+        notes=[*ingest.notes, *corrected],
+    ) as folder:  # fmt: skip
+        return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
-def _trajectory_folder(
-    bag: Bag, plan: BagPlan, out: Path, cfg: Config, *, overwrite: bool
-) -> Result:
+def _map_topic_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
+    """A bag's map topic (its last message, or ``scans.map_message``) as map2world or
+    dem2world would make it: an OccupancyGrid, or an elevation grid (grid_map)."""
+    from scan2terrain.grids import to_trinary
+    from scan2terrain.readers.scans import (
+        height_grid_from_message,
+        is_height_grid,
+        map_message,
+        occupancy_from_message,
+    )
+
+    msg, _ = map_message(bag, plan, cfg.scans.map_message)
+    if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
+        try:
+            heights = height_grid_from_message(msg)
+        except ValueError as exc:
+            raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
+        rows, cols = heights.shape
+        read = [*plan.reasons, f"height grid: {cols} x {rows} cells"]
+        return height_folder(heights, bag.path, cfg).noted(first=read)
+    try:
+        data, res, (x, y, yaw) = occupancy_from_message(msg)
+        grid = OccupancyGrid(data, res, Pose2D(x, y, yaw))
+    except ValueError as exc:
+        raise InputError(bag.path, f"{plan.map_topic}: {exc}") from exc
+    trinary = to_trinary(grid.data, occupied_above=MAP_OCCUPIED_ABOVE, free_below=MAP_FREE_BELOW)
+    folder = occupancy_folder(grid.with_data(trinary), bag.path, cfg)
+    # What was read first, then what the world's builders said (tiles, Classic left out...).
+    return folder.noted(first=[*plan.reasons, f"map: {grid.shape[1]} x {grid.shape[0]} cells"])
+
+
+def _trajectory_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
     """A bag with poses and nothing to map: OUT/trajectory.tum (and the effective config), no
     world; the report's first line says so."""
     from scan2terrain.exporters.trajectory import tum_bytes
     from scan2terrain.readers.scans import robot_trajectory
-    from scan2terrain.world.folder import WorldFolder, write_world_folder
 
     track, what = robot_trajectory(bag, cfg.scans, plan)
     span = (track.end_ns - track.start_ns) / 1e9
@@ -178,10 +175,9 @@ def _trajectory_folder(
         comment=f"{what} from {bag.path.name}, by scan2terrain\nt x y z qx qy qz qw",
     )
     notes = [*plan.reasons, f"trajectory: {len(track)} poses of {what}, {span:.3f} s"]
-    result = Result(out, notes=notes)
+    result = Result(notes=notes)
     result.no_world = "nothing to map, the bag has no scans; the robot's trajectory only"
-    folder = WorldFolder(bag.path, result, [], None, None, {"trajectory.tum": data})
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return WorldFolder(bag.path, result, [], None, None, {"trajectory.tum": data})
 
 
 def bag_octree(
@@ -416,9 +412,8 @@ def cloud2world(
         streamed = stream.stream_clouds(files, cfg, stream_progress)
         source = url_path(files[0])
         cfg = georeferenced(cfg, np.asarray(streamed.origin), files, chosen)
-        result = stream.streamed_world(streamed, source, out, cfg, overwrite=overwrite)
-        result.notes[:0] = chosen
-        return result
+        folder = stream.streamed_folder(streamed, source, cfg).noted(first=chosen)
+        return write_world_folder(folder, out, cfg, overwrite=overwrite)
     for f in files:
         if is_url(f):
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
@@ -472,15 +467,12 @@ def cloud2world(
         notes.append(
             f"{sum(outside.values()):,} point(s) {span} dropped, e.g. {n:,} of {path.name}"
         )
-    resolution = tree.resolution
+    taken = Voxels(keys, occupied, tree.resolution)
     del tree  # its store is not needed for the world: free it first
-    with octree_file(resolution, keys, occupied) as extra:
-        result = voxels_world(
-            keys, occupied, resolution, source=Path(files[0]), out=out, cfg=cfg,
-            overwrite=overwrite, extra=extra, colours=colours, columns=columns,
-        )  # fmt: skip
-    result.notes[:0] = notes
-    return result
+    with octree_folder(
+        taken, source=Path(files[0]), cfg=cfg, colours=colours, columns=columns, notes=notes
+    ) as folder:
+        return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
 def _cloud_resolution(

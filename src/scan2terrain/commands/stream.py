@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from scan2terrain.readers.scans import BagPlan
     from scan2terrain.replay.beams import BeamRecorder
     from scan2terrain.types import Start
-    from scan2terrain.world.folder import Result
+    from scan2terrain.world.folder import WorldFolder
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
 #: file, or several small files (fewer, larger results to send back and merge).
@@ -487,18 +487,16 @@ def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = No
     return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
 
 
-def streamed_world(
-    streamed: Streamed, source: Path, out: Path, cfg: Config, *, overwrite: bool
-) -> Result:
+def streamed_folder(streamed: Streamed, source: Path, cfg: Config) -> WorldFolder:
     """The merged tiles to a world folder: occupancy (cells with a point occupied, the rest
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
-    from scan2terrain.commands.maps import height_world, occupancy_world
+    from scan2terrain.commands.maps import height_folder, occupancy_folder
     from scan2terrain.steps import point_heights, refuse_tiles_grid, solid_hint
 
     tiles = streamed.tiles
-    counted = tiles.points
+    read = [*streamed.notes, f"points counted: {tiles.points:,}"]
     extra = {} if streamed.replay is None else {"replay": streamed.replay}
     # The grid holds what the world needs: the tiles' records go before the world is made.
     if cfg.octree.grid == "occupancy":
@@ -506,16 +504,9 @@ def streamed_world(
         grid = tiles.occupancy()
         tiles.clear()
         hint = solid_hint(grid)
-        result = occupancy_world(
-            grid, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra,
-            scans=True,
-        )  # fmt: skip
-        result.notes += [hint] if hint else []
+        folder = occupancy_folder(grid, source, cfg, start=streamed.start, scans=True)
+        folder = folder.noted(then=[hint] if hint else [])
     else:  # the octree path's heights come from the same step (commands/voxels.py)
         heights, notes = point_heights(tiles, cfg, source)
-        result = height_world(
-            heights, source, out, cfg, overwrite=overwrite, start=streamed.start, extra=extra
-        )
-        result.notes += notes
-    result.notes[:0] = [*streamed.notes, f"points counted: {counted:,}"]
-    return result
+        folder = height_folder(heights, source, cfg, start=streamed.start).noted(then=notes)
+    return folder.noted(first=read).with_extra(extra)

@@ -5,6 +5,9 @@ the same world folder as map2world (commands.maps)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,16 +30,15 @@ from scan2terrain.steps import (
 from scan2terrain.types import (
     Start,
 )
-from scan2terrain.world.folder import Result
+from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
-    from scan2terrain.world.folder import ExtraFiles
 
 
-from scan2terrain.commands.maps import height_world, occupancy_world
-from scan2terrain.commands.replay import scan_replay
+from scan2terrain.commands.maps import height_folder, occupancy_folder
+from scan2terrain.commands.replay import Replay, scan_replay
 from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import ScanProgress
 
@@ -63,15 +65,13 @@ def octree2world(
         columns = point_columns(cfg, cast=True)  # heights from the points, as for clouds
         recorder = BeamRecorder()
         tree = build_octree(source, cfg, progress, columns, recorder)
-        keys, occupied = tree.occupied_and_free()
-        resolution = tree.resolution
+        voxels = Voxels.taken(tree)
         del tree  # its store is not needed for the world: free it first
         replay = scan_replay(recorder, "the scan file's NODE poses", cfg)
-        with octree_file(resolution, keys, occupied) as extra:
-            return voxels_world(
-                keys, occupied, resolution, source=source, out=out, cfg=cfg,
-                overwrite=overwrite, extra={**extra, "replay": replay}, columns=columns,
-            )  # fmt: skip
+        with octree_folder(
+            voxels, source=source, cfg=cfg, columns=columns, replay=replay
+        ) as folder:
+            return write_world_folder(folder, out, cfg, overwrite=overwrite)
     from scan2terrain.grids.projection import leaf_columns
 
     bt = read_bt(source)
@@ -80,30 +80,66 @@ def octree2world(
         keys, occupied, runs = leaf_columns(bt.keys, bt.depth, bt.occupied)
     except ValueError as exc:
         raise InputError(source, f"{exc}: too large to project") from exc
-    return voxels_world(
-        keys, occupied, bt.resolution, source=source, out=out, cfg=cfg, overwrite=overwrite,
-        runs=runs,
-    )  # fmt: skip
+    folder = voxels_folder(keys, occupied, bt.resolution, source=source, cfg=cfg, runs=runs)
+    return write_world_folder(folder, out, cfg, overwrite=overwrite)
 
 
-def voxels_world(
+@dataclass(frozen=True)
+class Voxels:
+    """An octree's known voxels (OctoMap keys; occupied or free), taken out of it."""
+
+    keys: NDArray[np.uint16]
+    occupied: NDArray[np.bool_]
+    resolution: float
+
+    @classmethod
+    def taken(cls, tree: VoxelOctree) -> Voxels:
+        """The tree's voxels (the caller then drops the tree, whose store is large)."""
+        keys, occupied = tree.occupied_and_free()
+        return cls(keys, occupied, tree.resolution)
+
+
+@contextmanager
+def octree_folder(
+    voxels: Voxels,
+    *,
+    source: Path,
+    cfg: Config,
+    start: Start | None = None,
+    colours: VoxelColours | None = None,
+    columns: PointColumns | None = None,
+    replay: Replay | None = None,
+    notes: Sequence[str] = (),
+) -> Iterator[WorldFolder]:
+    """The tail bag2world, cloud2world and octree2world share: the world folder of an octree's
+    voxels (:func:`voxels_folder`), after ``notes`` (what was read), with ``octree.bt``, whose
+    bytes are made on a second thread meanwhile, and the ``replay`` of the recording; write it
+    inside the ``with`` (the writer waits for the bytes)."""
+    with octree_file(voxels.resolution, voxels.keys, voxels.occupied) as bt:
+        folder = voxels_folder(
+            voxels.keys, voxels.occupied, voxels.resolution, source=source, cfg=cfg,
+            start=start, colours=colours, columns=columns,
+        )  # fmt: skip
+        yield folder.noted(first=notes).with_extra(
+            {**bt, "replay": replay} if replay is not None else bt, before=True
+        )
+
+
+def voxels_folder(
     keys: NDArray[np.uint16],
     occupied: NDArray[np.bool_],
     resolution: float,
     *,
     source: Path,
-    out: Path,
     cfg: Config,
-    overwrite: bool,
-    extra: ExtraFiles | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,
     columns: PointColumns | None = None,
-) -> Result:
+) -> WorldFolder:
     """Known voxels (OctoMap keys, occupied or free) to a world folder: octomap_server's 2D
     projection (``octree.grid: occupancy``) or a 2.5D height grid, plus the occupied voxel
-    centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_world`;
+    centres when ``octree.points`` asks for them; ``start`` as for :func:`occupancy_folder`;
     ``runs``: each key starts a vertical run of that many voxels (pruned leaves).
     ``columns``: the column statistics of the points the voxels were made from; a height
     grid's heights are then theirs (the points' z, as the streamed path takes them), not the
@@ -111,7 +147,7 @@ def voxels_world(
     from scan2terrain.grids import projection
     from scan2terrain.grids.occupied import occupied_voxels
 
-    extra = dict(extra or {})
+    extra: dict[str, bytes] = {}
     if len(keys) == 0:
         raise InputError(source, "the octree holds no known voxel")
     o = cfg.octree
@@ -124,12 +160,12 @@ def voxels_world(
             key_to_coord(solid, resolution), f".{o.points}"
         )
     if cfg.world.geometry == "voxels":
-        from scan2terrain.world.voxels import voxel_mesh_world
+        from scan2terrain.world.voxels import voxel_mesh_folder
 
-        return voxel_mesh_world(
-            keys, occupied, resolution, source=source, out=out, cfg=cfg, overwrite=overwrite,
-            extra=extra, start=start, runs=runs, colours=colours,
-        )  # fmt: skip
+        return voxel_mesh_folder(
+            keys, occupied, resolution, source=source, cfg=cfg, start=start, runs=runs,
+            colours=colours,
+        ).with_extra(extra)  # fmt: skip
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
     # Size the grid before allocating it (its columns span the keys' x and y range).
@@ -140,11 +176,8 @@ def voxels_world(
             keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
         )
         hint = solid_hint(grid)
-        result = occupancy_world(
-            grid, source, out, cfg, overwrite=overwrite, extra=extra, start=start, scans=True
-        )
-        result.notes += [hint] if hint else []
-        return result
+        folder = occupancy_folder(grid, source, cfg, start=start, scans=True)
+        return folder.noted(then=[hint] if hint else []).with_extra(extra)
     if columns is not None:
         tiles = columns.finish()
         # End points occupy every voxel they hit: their columns are the tiles' own (the same
@@ -156,16 +189,13 @@ def voxels_world(
                 keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
             )
         heights, notes = point_heights(tiles, cfg, source, occupied=bounds)
-        result = height_world(
-            heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start
-        )
-        result.notes += notes
-        return result
+        folder = height_folder(heights, source, cfg, start=start)
+        return folder.noted(then=notes).with_extra(extra)
     stats = projection.column_stats(keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs)
     if not stats.known.any():
         raise InputError(source, "no occupied voxel in the z band: nothing to make terrain of")
     heights = fill_holes(stats.to_height_grid(o.height_stat), cfg)
-    return height_world(heights, source, out, cfg, overwrite=overwrite, extra=extra, start=start)
+    return height_folder(heights, source, cfg, start=start).with_extra(extra)
 
 
 def point_columns(cfg: Config, *, cast: bool) -> PointColumns | None:

@@ -1,10 +1,16 @@
 """The world folder: what a command writes, computed as a :class:`WorldFolder` and written by
 :func:`write_world_folder`, the one writer (atomically: map/, each simulator's models and world,
 spawn.yaml, preview, extra files, the effective config), and the :class:`Result` it reports,
-built by adding notes, never by replacing them."""
+built by adding notes, never by replacing them.
+
+The world builders (``world/terrain.py``, ``walls.py``, ``voxels.py``) and the commands' grid
+steps return a :class:`WorldFolder` and write nothing; each command adds what it read
+(:meth:`WorldFolder.noted`) and its extra files (:meth:`WorldFolder.with_extra`), then calls the
+writer once."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
@@ -67,7 +73,7 @@ class WorldOutput:
 class Result:
     """What a command wrote, for the CLI to report."""
 
-    out: Path
+    out: Path = Path()  #: the folder written (set by :func:`write_world_folder`)
     worlds: list[WorldOutput] = field(default_factory=list)
     heightmap_side: int = 0
     resolution: float = 0.0
@@ -128,11 +134,24 @@ class WorldFolder:
     preview: Preview | None  #: None: nothing to preview (no world)
     extra: ExtraFiles  #: more files at the top (octree.bt, occupied voxels)
 
+    def noted(self, first: Sequence[str] = (), then: Sequence[str] = ()) -> WorldFolder:
+        """The folder with ``first`` put before the report's notes (what was read before the
+        world was built) and ``then`` after them."""
+        self.result.notes[:0] = first
+        self.result.notes.extend(then)
+        return self
+
+    def with_extra(self, extra: ExtraFiles, *, before: bool = False) -> WorldFolder:
+        """The folder with more files at the top (``before``: listed before its own)."""
+        both = {**extra, **self.extra} if before else {**self.extra, **extra}
+        return dataclasses.replace(self, extra=both)
+
 
 def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite: bool) -> Result:
     """The one writer of world folders, atomically: map/, each simulator's models and world,
     spawn.yaml, preview, extra files, the effective config. Returns the completed report."""
     result = folder.result
+    result.out = out
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
     extra = _derived(folder, result)

@@ -1,5 +1,6 @@
-"""Terrain worlds: one heightmap model (:func:`write_terrain`) or tiles placed edge to edge
-(:func:`write_tiles`), each simulator's model folder and world, handed to the one writer."""
+"""Terrain worlds: one heightmap model (:func:`terrain_folder`) or tiles placed edge to edge
+(:func:`tiles_folder`), each simulator's model folder and world, as a
+:class:`~scan2terrain.world.folder.WorldFolder` for the one writer."""
 
 from __future__ import annotations
 
@@ -17,42 +18,30 @@ from scan2terrain.types import (
     OccupancyGrid,
     Spawn,
 )
-from scan2terrain.world.folder import (
-    ExtraFiles,
-    Result,
-    WorldFolder,
-    map_notes,
-    sim_world,
-    write_world_folder,
-)
+from scan2terrain.world.folder import Result, WorldFolder, map_notes, sim_world
 from scan2terrain.world.names import model_name_for, terrain_name
 
 
-def write_terrain(
-    out: Path,
+def terrain_folder(
     cfg: Config,
     *,
-    overwrite: bool,
     source: Path,
     hm: Terrain,
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: Preview,
     spawn: Spawn,
-    extra: ExtraFiles | None = None,
     comment_extra: str = "",
-) -> Result:
+) -> WorldFolder:
+    """A heightmap (or its tiles) as each simulator's model and world."""
     if isinstance(hm, TiledHeightmap):
-        return write_tiles(
-            out,
+        return tiles_folder(
             cfg,
-            overwrite=overwrite,
             source=source,
             tiled=hm,
             levels=levels,
             map_out=map_out,
             preview=preview,
-            extra=extra,
             comment_extra=comment_extra,
             spawn=spawn,
         )
@@ -62,7 +51,7 @@ def write_terrain(
     base_name = model_name_for(source, hm, cfg)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
     result = Result(
-        out=out, heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range, spawn=spawn
+        heightmap_side=hm.side, resolution=hm.resolution, size_z=hm.z_range, spawn=spawn
     )
     result.notes.extend(map_notes(cfg, map_out))
     parts = []
@@ -84,24 +73,20 @@ def write_terrain(
                 z_offset=z_offset,
             )
         )  # fmt: skip
-    folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return WorldFolder(source, result, parts, map_out, preview, {})
 
 
-def write_tiles(
-    out: Path,
+def tiles_folder(
     cfg: Config,
     *,
-    overwrite: bool,
     source: Path,
     tiled: TiledHeightmap,
     levels: tuple[float, float, float],
     map_out: OccupancyGrid | None,
     preview: Preview,
-    extra: ExtraFiles | None,
     comment_extra: str,
     spawn: Spawn,
-) -> Result:
+) -> WorldFolder:
     """Terrain tiles: one model per tile (models/<name>_<row>_<col>/), one gz-sim world that
     includes them all. Gazebo Classic is refused (``world.simulator: classic``) or left out with
     a note (``both``): it renders one heightmap per scene, always at the world origin."""
@@ -125,7 +110,6 @@ def write_tiles(
     base = terrain_name(source, tiled, cfg)
     s = sdf.DEFAULT_SAMPLING[GZ] if cfg.world.sampling is None else cfg.world.sampling
     result = Result(
-        out=out,
         heightmap_side=tiled.side,
         resolution=r,
         size_z=tiled.span,
@@ -159,8 +143,7 @@ def write_tiles(
     part = sim_world(
         whole, files, cfg=cfg, comment=world_comment, spawn=spawn, placements=placements
     )
-    plan = WorldFolder(source, result, [part], map_out, preview, extra or {})
-    return write_world_folder(plan, out, cfg, overwrite=overwrite)
+    return WorldFolder(source, result, [part], map_out, preview, {})
 
 
 def _terrain_model(

@@ -44,12 +44,10 @@ from scan2terrain.octree.keys import KEY_OFFSET
 from scan2terrain.steps import Preview, spawn_for
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Start
 from scan2terrain.world.folder import (
-    ExtraFiles,
     Result,
     WorldFolder,
     map_notes,
     sim_world,
-    write_world_folder,
 )
 from scan2terrain.world.names import unique_name
 
@@ -74,20 +72,17 @@ SCAN_PLANE_SPAN = FLOOR_BAND
 MAX_MESH_VOXELS = 4_000_000
 
 
-def voxel_mesh_world(
+def voxel_mesh_folder(
     keys: NDArray[np.uint16],
     occupied: NDArray[np.bool_],
     resolution: float,
     *,
     source: Path,
-    out: Path,
     cfg: Config,
-    overwrite: bool,
-    extra: ExtraFiles | None = None,
     start: Start | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,
-) -> Result:
+) -> WorldFolder:
     """Known voxels (OctoMap keys, occupied or free; ``runs`` as in grids.projection) to a world
     whose geometry is the occupied voxels in the z band (see the module docstring); with
     ``colours`` (the points' mean colour per voxel) the visuals carry them."""
@@ -222,7 +217,7 @@ def voxel_mesh_world(
     base_name = unique_name(source, lattice.tobytes() + payload, cfg)
     size_z = float(hi[2] - lo[2])
     result = Result(
-        out=out, resolution=resolution, size_z=size_z, geometry="voxels", walls=summary,
+        resolution=resolution, size_z=size_z, geometry="voxels", walls=summary,
         spawn=spawn, preview_label="the 2D projection (map/)",
     )  # fmt: skip
     if palette is not None:
@@ -260,8 +255,7 @@ def voxel_mesh_world(
         parts.append(sim_world(p, model, cfg=cfg, comment=described, spawn=spawn))
     preview = Preview(preview_png(map_out.data, None, occupancy=True), result.preview_label)
     # The projection is in world axes already (yaw 0, on voxel boundaries).
-    folder = WorldFolder(source, result, parts, map_out, preview, dict(extra or {}))
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return WorldFolder(source, result, parts, map_out, preview, {})
 
 
 def _slab_around(grid: OccupancyGrid, ground: sdf.Ground) -> tuple[NDArray[np.bool_], Around]:

@@ -31,12 +31,10 @@ from scan2terrain.types import (
     Start,
 )
 from scan2terrain.world.folder import (
-    ExtraFiles,
     Result,
     WorldFolder,
     map_notes,
     sim_world,
-    write_world_folder,
 )
 from scan2terrain.world.names import unique_name
 
@@ -50,17 +48,14 @@ class _Walls:
     summary: str  #: what the walls are, for the SDF comment and the report
 
 
-def walls_world(
+def walls_folder(
     grid: OccupancyGrid,
     source: Path,
-    out: Path,
     cfg: Config,
     *,
-    overwrite: bool,
     preview: Preview,
-    extra: ExtraFiles | None = None,
     start: Start | None = None,
-) -> Result:
+) -> WorldFolder:
     """A filtered trinary grid to a world of walls (``world.geometry``: mesh, boxes, polylines).
 
     The walls are the occupied cells (and the unknown ones with ``terrain.unknown: obstacle``),
@@ -115,9 +110,7 @@ def walls_world(
     aligned, world_origin = axis_align(grid.data, origin, r, fill=UNKNOWN)
     map_out = OccupancyGrid(aligned, r, world_origin)
     sims = (GZ, CLASSIC) if cfg.world.simulator == "both" else (cfg.world.simulator,)
-    result = Result(
-        out=out, resolution=r, size_z=t.height, geometry=kind, walls=made.summary, spawn=spawn
-    )
+    result = Result(resolution=r, size_z=t.height, geometry=kind, walls=made.summary, spawn=spawn)
     result.notes.extend(map_notes(cfg, map_out))
     parts = []
     for sim in sims:
@@ -127,8 +120,7 @@ def walls_world(
         files[f"models/{name}/model.sdf"] = made.model_sdf(p, described)
         files[f"models/{name}/model.config"] = sdf.model_config(p, f"Walls from {source.name}")
         parts.append(sim_world(p, files, cfg=cfg, comment=described, spawn=spawn))
-    folder = WorldFolder(source, result, parts, map_out, preview, extra or {})
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return WorldFolder(source, result, parts, map_out, preview, {})
 
 
 def _walls(
