@@ -107,7 +107,7 @@ def _bad(tmp: Path) -> dict[str, tuple[Path, str]]:
     crc[at] ^= 0xFF
     bad = tmp / "crc.mcap"
     bad.write_bytes(bytes(crc))
-    cases["chunk crc"] = (bad, "a chunk fails its CRC check")
+    cases["chunk crc"] = (bad, "fails its CRC check")
     flat = _mcap(tmp / "flat.mcap", [("/scan", "flatbuffer", "flatbuffer", None)])
     cases["unknown schema encoding"] = (flat, "no channel of this MCAP file can be read: /scan:")
     lost = _mcap(tmp / "lost.mcap", [("/scan", "ros1", "ros1msg", 9)])

@@ -299,9 +299,9 @@ class McapFile:
                 continue
             run = None
             if opcode == Opcode.CHUNK:
-                chunk = _read_chunk(f.read(length))
+                chunk = _read_chunk(f.read(length), offset)
                 block = _Block(offset, offset + 9 + length, 0, 0, set(), chunk=True)
-                times = self._scan_chunk(layout, _chunk_bytes(chunk), block)
+                times = self._scan_chunk(layout, _chunk_bytes(chunk, offset), block)
                 if times:
                     block.start_ns, block.end_ns = min(times), max(times)
                     layout.blocks.append(block)
@@ -313,7 +313,7 @@ class McapFile:
     def _scan_chunk(self, layout: _Layout, data: memoryview, block: _Block) -> list[int]:
         times = []
         assert block.channels is not None
-        for op, body, end, t_ns in _split(data):
+        for op, body, end, t_ns in _split(data, block.offset):
             if t_ns >= 0:
                 channel = op >> 8
                 block.channels.add(channel)
@@ -525,7 +525,12 @@ class McapFile:
                     if (ahead := after.get(n)) is not None:
                         loading[ahead] = loader.submit(self._load, blocks[ahead])
                     data = load.result()
-                    wanted = [m for m in _messages(data) if m[0] in rank and lo <= m[1] < hi]
+                    chunk = blocks[n].chunk
+                    wanted = [
+                        m
+                        for m in _messages(data, offset, chunk=chunk)
+                        if m[0] in rank and lo <= m[1] < hi
+                    ]
                     if (
                         wanted
                         and (not heap or wanted[-1][1] < heap[0][0])
@@ -556,8 +561,11 @@ class McapFile:
             return data
         opcode, length = _OPLEN.unpack_from(data)
         if opcode != Opcode.CHUNK or 9 + length != size:
-            raise _Damaged("a chunk index points at something else than its chunk")
-        return _chunk_bytes(_read_chunk(data[9:]))
+            raise _Damaged(
+                f"the chunk index points at byte {block.offset} for {size:,} bytes, where there "
+                f"is a record of opcode {opcode} and {9 + length:,} bytes"
+            )
+        return _chunk_bytes(_read_chunk(data[9:], block.offset), block.offset)
 
     def close(self) -> None:
         self._f.close()

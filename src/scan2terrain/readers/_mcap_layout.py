@@ -107,7 +107,11 @@ def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, in
             raise _Damaged("a record is cut short")
         opcode, length = _OPLEN.unpack(head)
         if length > stop - pos - 9:
-            raise _Damaged(f"a record claims {length:,} bytes, more than the file holds there")
+            what = "the chunk" if opcode == Opcode.CHUNK else "the record"
+            raise _Damaged(
+                f"{what} at byte {pos} claims {length:,} bytes, more than the file holds there "
+                f"({max(stop - pos - 9, 0):,})"
+            )
         yield pos, opcode, length
         pos += 9 + length
 
@@ -115,36 +119,58 @@ def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, in
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 
 
-def _read_chunk(body: bytes | memoryview) -> Chunk:
-    """mcap's :class:`~mcap.records.Chunk` of a chunk record's body, its ``data`` a view into
-    ``body`` (``Chunk.read`` copies the data once more: a third of the read time here)."""
+#: What compressions a chunk may have, as MCAP names them.
+COMPRESSIONS = ("", "zstd", "lz4")
+
+
+def _read_chunk(body: bytes | memoryview, at: int) -> Chunk:
+    """mcap's :class:`~mcap.records.Chunk` of the body of the chunk record at byte ``at``, its
+    ``data`` a view into ``body`` (``Chunk.read`` copies the data once more: a third of the read
+    time here). Its records must fill what it holds of the record; uncompressed, they are as many
+    bytes as it states."""
+    where = f"the chunk at byte {at}"
     if len(body) < _CHUNK_HEAD.size:
-        raise _Damaged("a damaged chunk record")
+        raise _Damaged(f"{where} is cut short ({len(body):,} bytes)")
     start, end, size, crc, n = _CHUNK_HEAD.unpack_from(body)
-    at = _CHUNK_HEAD.size + n
-    if at + 8 > len(body):
-        raise _Damaged("a damaged chunk record")
-    (length,) = struct.unpack_from("<Q", body, at)
-    if at + 8 + length > len(body):
-        raise _Damaged("a chunk's data runs past its record")
+    head = _CHUNK_HEAD.size + n
+    if head + 8 > len(body):
+        raise _Damaged(f"{where}: its compression name of {n:,} bytes runs past the chunk")
+    (length,) = struct.unpack_from("<Q", body, head)
+    if head + 8 + length > len(body):
+        raise _Damaged(
+            f"{where}: its records claim {length:,} bytes, past the chunk's end "
+            f"({len(body) - head - 8:,} bytes there)"
+        )
     try:
-        compression = bytes(body[_CHUNK_HEAD.size : at]).decode()
+        compression = bytes(body[_CHUNK_HEAD.size : head]).decode()
     except UnicodeDecodeError as exc:
-        raise _Damaged("a damaged chunk record") from exc
-    data = memoryview(body)[at + 8 : at + 8 + length]
+        raise _Damaged(f"{where}: its compression name is not text") from exc
+    if compression not in COMPRESSIONS:
+        raise _Damaged(
+            f"{where} is compressed with {compression[:40]!r}; MCAP chunks are read with lz4, "
+            "zstd or none"
+        )
+    if compression == "" and length != size:
+        raise _Damaged(
+            f"{where} states {size:,} bytes of records, its uncompressed records are {length:,}"
+        )
+    data = memoryview(body)[head + 8 : head + 8 + length]
     return Chunk(compression, data, end, start, crc, size)  # type: ignore[arg-type]
 
 
-def _chunk_bytes(chunk: Chunk) -> memoryview:
-    """A chunk's records, decompressed under the cap and checked against its CRC."""
+def _chunk_bytes(chunk: Chunk, at: int) -> memoryview:
+    """The records of the chunk at byte ``at``, decompressed under the cap and checked against
+    its size and CRC."""
+    where = f"the chunk at byte {at}"
     size = chunk.uncompressed_size
     limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * len(chunk.data))
     if size > limit:
         raise _Damaged(
-            f"a chunk claims {size:,} bytes, more than {MAX_ZSTD_RATIO} times its "
+            f"{where} claims {size:,} bytes, more than {MAX_ZSTD_RATIO} times its "
             f"{len(chunk.data):,} compressed (a corrupt size, or a zstd bomb?)"
         )
     kind = chunk.compression
+    short = f"{where} does not decompress to the {size:,} bytes it states"
     try:
         if kind == "" or size == 0:
             data = chunk.data if kind == "" else b""
@@ -152,29 +178,34 @@ def _chunk_bytes(chunk: Chunk) -> memoryview:
             dz = zstd.ZstdDecompressor()
             data = dz.decompress(chunk.data, max_length=size)
             if not dz.eof:
-                raise _Damaged("a zstd chunk holds more than its stated size, or is cut short")
+                raise _Damaged(f"{short} (more, or its data is cut short)")
         elif kind == "lz4":
             import lz4.frame  # type: ignore[import-untyped]
 
             dl = lz4.frame.LZ4FrameDecompressor()
             data = dl.decompress(chunk.data, max_length=size)
             if not dl.eof:
-                raise _Damaged("an lz4 chunk holds more than its stated size, or is cut short")
+                raise _Damaged(f"{short} (more, or its data is cut short)")
         else:
             raise _Damaged(
-                f"a chunk is compressed with {kind!r}; MCAP chunks are read with lz4, zstd or none"
+                f"{where} is compressed with {kind!r}; MCAP chunks are read with lz4, zstd or none"
             )
     except (zstd.ZstdError, RuntimeError, ValueError, EOFError) as exc:  # lz4 raises RuntimeError
-        raise _Damaged(f"a {kind} chunk cannot be decompressed ({_one_line(str(exc))})") from exc
+        raise _Damaged(
+            f"{where}: its {kind} data cannot be decompressed ({_one_line(str(exc))})"
+        ) from exc
     if len(data) != size:
-        raise _Damaged(f"a chunk holds {len(data):,} bytes, not the {size:,} it states")
+        raise _Damaged(f"{short} ({len(data):,})")
     if chunk.uncompressed_crc and crc32(data) != chunk.uncompressed_crc:
-        raise _Damaged("a chunk fails its CRC check (corrupt data)")
+        raise _Damaged(f"{where} fails its CRC check (corrupt data)")
     return memoryview(data)
 
 
-def _split(data: bytes | memoryview) -> Iterator[tuple[int, int, int, int]]:
-    """``(opcode, body start, body end, log time or -1)`` of each record in a chunk's bytes;
+def _split(
+    data: bytes | memoryview, at: int, *, chunk: bool = True
+) -> Iterator[tuple[int, int, int, int]]:
+    """``(opcode, body start, body end, log time or -1)`` of each record in a chunk's bytes
+    (the chunk record at byte ``at``; not ``chunk``: the top-level records from byte ``at``);
     for messages the body starts at the payload and the channel id is packed in the opcode's
     place as ``opcode | channel << 8``."""
     pos, n = 0, len(data)
@@ -182,14 +213,23 @@ def _split(data: bytes | memoryview) -> Iterator[tuple[int, int, int, int]]:
     message = Opcode.MESSAGE
     while pos < n:
         if pos + 9 > n:
-            raise _Damaged("a chunk's last record is cut short")
+            where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
+            raise _Damaged(f"{where}: its last record is cut short")
         opcode, length = oplen(data, pos)
         body, end = pos + 9, pos + 9 + length
         if end > n:
-            raise _Damaged(f"a record in a chunk claims {length:,} bytes, past the chunk's end")
+            where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
+            raise _Damaged(
+                f"{where}: the record at byte {pos} of its {n:,} claims {length:,} bytes, past "
+                "their end"
+            )
         if opcode == message:
             if length < _MESSAGE_HEAD_SIZE:
-                raise _Damaged("a message record shorter than its header")
+                where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
+                raise _Damaged(
+                    f"{where}: the message record at byte {pos} of its {n:,} claims {length:,} "
+                    "bytes, less than its header"
+                )
             channel, _, log_time = head(data, body)
             yield message | channel << 8, body + _MESSAGE_HEAD_SIZE, end, log_time
         else:
@@ -204,10 +244,10 @@ def _in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int])
     return all(a <= b for a, b in itertools.pairwise(keys))
 
 
-def _messages(data: memoryview) -> Iterator[tuple[int, int, memoryview]]:
-    """``(channel id, log time, payload)`` of each message of a block's records, in file order.
-    Views, not copies: rosbags' deserialisers take them (a message's arrays then view its
-    chunk's bytes, as they view a .bag's message bytes)."""
-    for op, body, end, t_ns in _split(data):
+def _messages(data: memoryview, at: int, *, chunk: bool) -> Iterator[tuple[int, int, memoryview]]:
+    """``(channel id, log time, payload)`` of each message of a block's records (at byte
+    ``at``: :func:`_split`), in file order. Views, not copies: rosbags' deserialisers take them
+    (a message's arrays then view its chunk's bytes, as they view a .bag's message bytes)."""
+    for op, body, end, t_ns in _split(data, at, chunk=chunk):
         if t_ns >= 0:
             yield op >> 8, t_ns, data[body:end]

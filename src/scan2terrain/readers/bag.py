@@ -45,6 +45,8 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 from rosbags.interfaces import TopicInfo as _RosbagsTopic
+from rosbags.rosbag2.reader import DirectoryReader
+from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError
@@ -60,6 +62,8 @@ from scan2terrain.readers._bag_errors import (
 from scan2terrain.readers._bag_source import _Source, _source
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._mcap import McapFile, mcap_profile
+from scan2terrain.readers._mcap_layout import _DAMAGED, _Damaged
+from scan2terrain.readers._mcap_rosbags import CheckedMcapReader
 from scan2terrain.readers.carmen import CarmenFile, is_carmen_log, named_like_log
 from scan2terrain.types import normalise_frame
 
@@ -412,6 +416,8 @@ class Bag:
                 yield item
         except InputError:
             raise
+        except _Damaged as exc:
+            raise InputError(self._owner(conns), f"{_DAMAGED}: {exc}") from None
         except Exception as exc:  # rosbags' backends raise many types mid-stream; name the file
             problem = _explain(exc, reading=True, storage=self._storage)
             raise InputError(self._owner(conns), problem) from exc
@@ -575,7 +581,10 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
                 reader = _Rosbags(list(source.read), default_typestore=_default_typestore())
                 if not reader.is2:
                     reader.readers = [_Ros1Reader(p) for p in source.read]
+                _check_mcap(reader)
                 reader.open()
+            except _Damaged as exc:
+                raise InputError(where, f"{_DAMAGED}: {exc}") from None
             except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
                 problem = _explain(exc, storage=_storage(source.read[0]))
                 raise InputError(_culprit(source, where), problem) from exc
@@ -601,6 +610,20 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
         listed = "; ".join(f"{t}: {why}" for t, why in bag.skipped.items())
         warnings.warn(BagWarning(f"{bag.path}: skipping topics: {listed}"), stacklevel=2)
     return bag
+
+
+def _check_mcap(reader: _Rosbags) -> None:
+    """rosbags' MCAP storage replaced by :class:`~._mcap_rosbags.CheckedMcapReader` (every
+    length checked against its chunk and the file) in ``reader``, before it is opened."""
+    if not reader.is2:
+        return
+    for r in reader.readers:
+        storage = getattr(r, "storage", None)
+        if type(storage) is McapReader:
+            r.storage = CheckedMcapReader(storage.path)  # type: ignore[union-attr]
+        elif isinstance(storage, DirectoryReader):  # opens its storage files from this table
+            plugins = {**storage.STORAGE_PLUGINS, "mcap": CheckedMcapReader}
+            storage.STORAGE_PLUGINS = plugins
 
 
 def _carmen_log(path: Path | str | Sequence[Path | str]) -> Path | None:

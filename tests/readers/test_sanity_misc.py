@@ -1,0 +1,218 @@
+"""Issue 28, hostile files round 2: numbers that must make sense against the file and the format.
+
+MCAP record lengths against their chunk and the file, PNG palettes and bit depths, map YAML
+resolutions and origins, PLY headers and list rows, rosbag2 metadata. Each input here was read
+as valid (a world written from what was left), failed with exit 1, or said more than one line;
+each is refused now through the real command with exit 2, exactly one stderr line
+``scan2terrain: error: <path>: ...`` naming the field and the value, and nothing written.
+
+The commands run once for the module through :func:`tests.mutation_runner.run_cases` (forked
+children, stderr captured at file descriptor 2, so lines C libraries print count too).
+"""
+
+from __future__ import annotations
+
+import shutil
+import struct
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from tests.mutation_runner import Case, Outcome, run_cases
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURES = ROOT / "fixtures"
+LUMINAR = FIXTURES / "bags/bag2_derived_embark_luminar_mcap"
+LIMIT_BYTES = 3 << 30
+TIMEOUT_S = 60
+WORLD = ["--simulator", "gz", "--no-preview"]
+
+
+def one_line(o: Outcome, src: Path) -> str:
+    """The command's only stderr line: an error naming ``src`` (exit 2, nothing written)."""
+    lines = o.stderr.strip().splitlines()
+    assert o.exit == 2 and o.signal is None, o.describe()
+    assert len(lines) == 1, o.describe()
+    assert lines[0].startswith(f"scan2terrain: error: {src}: "), o.describe()
+    assert not o.new_files, o.describe()
+    return lines[0]
+
+
+# --- MCAP ---------------------------------------------------------------------------------------
+
+
+def mcap_records(
+    data: bytes, start: int = 8, stop: int | None = None
+) -> list[tuple[int, int, int]]:
+    """``(offset, opcode, length)`` of each record in ``data[start:stop]``."""
+    out, pos, stop = [], start, len(data) - 8 if stop is None else stop
+    while pos + 9 <= stop:
+        op, length = struct.unpack_from("<BQ", data, pos)
+        out.append((pos, op, length))
+        if op == 0x02:  # the footer
+            break
+        pos += 9 + length
+    return out
+
+
+def chunk_layout(data: bytes, at: int) -> tuple[int, int, int, str]:
+    """The chunk record at ``at``: (offset of its uncompressed size field, offset of its records,
+    their compressed length, compression)."""
+    (n,) = struct.unpack_from("<I", data, at + 9 + 28)
+    compression = data[at + 9 + 32 : at + 9 + 32 + n].decode()
+    (length,) = struct.unpack_from("<Q", data, at + 9 + 32 + n)
+    return at + 9 + 16, at + 9 + 32 + n + 8, length, compression
+
+
+def first_chunk(data: bytes) -> int:
+    return next(pos for pos, op, _ in mcap_records(data) if op == 0x06)
+
+
+def _room_rosbag2(folder: Path) -> tuple[Path, Path]:
+    """The synthetic room as a rosbag2 MCAP folder (rosbags' writer: uncompressed chunks,
+    profile ros2): (the folder, its .mcap)."""
+    from tests.test_mutations import room
+
+    path = folder / "room"
+    room("tf").write(path, "mcap")
+    return path, next(path.glob("*.mcap"))
+
+
+def _room_ros1_mcap(folder: Path, compression: str) -> Path:
+    """The synthetic room as a ROS1 MCAP file (profile ros1, read by scan2terrain's reader)."""
+    from tests.bagmaker import ros1_bag_to_mcap
+    from tests.test_mutations import room
+
+    bag = folder / "room.tmp.bag"
+    room("tf").write(bag, "ros1")
+    path = folder / f"room-{compression}.mcap"
+    ros1_bag_to_mcap(bag, path, compression=compression)  # type: ignore[arg-type]
+    bag.unlink()
+    return path
+
+
+def _overrun_inner_record(mcap: Path, *, opcode: int = 0x05) -> tuple[int, int]:
+    """In the first (uncompressed) chunk of ``mcap``, the last scan's message record made to
+    claim bytes past the chunk's end, as record ``opcode`` (one MCAP readers skip when it is
+    unknown, 0x80): (chunk offset, the length). Scans before it are whole."""
+    data = bytearray(mcap.read_bytes())
+    at = first_chunk(bytes(data))
+    _, records, length, compression = chunk_layout(bytes(data), at)
+    assert compression == ""
+    inner = mcap_records(bytes(data), records, records + length)
+    assert inner[-1][0] + 9 + inner[-1][2] == records + length
+    longest = max(n for _, op, n in inner if op == 0x05)  # the scans
+    scans = [pos for pos, op, n in inner if op == 0x05 and n == longest]
+    assert len(scans) > 2
+    pos = scans[-1]
+    claim = records + length - pos - 9 + 1000
+    struct.pack_into("<BQ", data, pos, opcode, claim)
+    struct.pack_into("<I", data, at + 9 + 24, 0)  # no CRC (as MCAP allows): the length is at fault
+    mcap.write_bytes(bytes(data))
+    return at, claim
+
+
+def _set_chunk_field(mcap: Path, field: str, value: int) -> int:
+    """The first chunk record's ``length`` (the record's) or ``size`` (its uncompressed size)
+    set to ``value``; its offset."""
+    data = bytearray(mcap.read_bytes())
+    at = first_chunk(bytes(data))
+    size_at, *_ = chunk_layout(bytes(data), at)
+    struct.pack_into("<Q", data, at + 1 if field == "length" else size_at, value)
+    mcap.write_bytes(bytes(data))
+    return at
+
+
+def mcap_inputs(tmp: Path) -> dict[str, tuple[Path, list[str], dict[str, int]]]:
+    """name -> (the input, its command, what the refusal must name)."""
+    out: dict[str, tuple[Path, list[str], dict[str, int]]] = {}
+    for name in ("inner", "past-file", "size"):
+        folder, mcap = _room_rosbag2(tmp / f"ros2-{name}")
+        if name == "inner":  # an unknown record: skipped, the scans before it were kept
+            at, claim = _overrun_inner_record(mcap, opcode=0x80)
+        elif name == "past-file":
+            claim = 1 << 40
+            at = _set_chunk_field(mcap, "length", claim)
+        else:
+            claim = 6000
+            at = _set_chunk_field(mcap, "size", claim)
+        out[f"mcap-ros2-{name}"] = (
+            folder,
+            ["convert", "{in}", "{out}.xyz"],
+            {"at": at, "n": claim},
+        )
+    zstd = tmp / "ros2-zstd"
+    shutil.copytree(LUMINAR, zstd)
+    mcap = next(zstd.glob("*.mcap"))
+    at = _set_chunk_field(mcap, "size", 1_000_000)
+    out["mcap-ros2-zstd-size"] = (
+        zstd, ["convert", "{in}", "{out}.xyz", "--topic", "/base_scan"], {"at": at, "n": 1_000_000}
+    )  # fmt: skip
+    plain = _room_ros1_mcap(tmp, "none")
+    at, claim = _overrun_inner_record(plain)
+    out["mcap-ros1-inner"] = (plain, ["convert", "{in}", "{out}.xyz"], {"at": at, "n": claim})
+    packed = _room_ros1_mcap(tmp, "zstd")
+    at = _set_chunk_field(packed, "size", 6000)
+    out["mcap-ros1-zstd-size"] = (packed, ["convert", "{in}", "{out}.xyz"], {"at": at, "n": 6000})
+    return out
+
+
+# --- the commands, run once -----------------------------------------------------------------------
+
+Inputs = dict[str, tuple[Path, list[str], dict[str, int]]]
+BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs]
+
+
+@pytest.fixture(scope="module")
+def commands(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> dict[str, tuple[Path, Outcome, dict[str, int]]]:
+    """name -> (the hostile input, how its command ended, what it must name)."""
+    tmp = tmp_path_factory.mktemp("sanity")
+    inputs: Inputs = {}
+    for build in BUILDERS:
+        folder = tmp / build.__name__
+        folder.mkdir()
+        inputs.update(build(folder))
+    cases = []
+    for name, (src, argv, _) in inputs.items():
+        out = tmp / "out" / name
+        out.mkdir(parents=True)
+        filled = [a.replace("{in}", str(src)).replace("{out}", str(out / "o")) for a in argv]
+        cases.append(Case(name, filled, str(out)))
+    results = run_cases(
+        cases, limit_bytes=LIMIT_BYTES, timeout_s=TIMEOUT_S, workdir=tmp / "_runner"
+    )
+    return {
+        c.name: (inputs[c.name][0], o, inputs[c.name][2])
+        for c, o in zip(cases, results, strict=True)
+    }
+
+
+# --- 1. MCAP: every record inside its chunk, every chunk inside the file --------------------------
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["mcap-ros2-inner", "mcap-ros2-past-file", "mcap-ros1-inner"],
+)
+def test_an_mcap_record_running_past_its_chunk_or_the_file_is_refused(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str
+) -> None:
+    """Seen (mcap-ros2-inner): the messages before the record were read, a world written."""
+    src, o, named = commands[case]
+    line = one_line(o, src)
+    assert f"the chunk at byte {named['at']}" in line, line
+    assert f"{named['n']:,} bytes" in line, line
+
+
+@pytest.mark.parametrize("case", ["mcap-ros2-size", "mcap-ros2-zstd-size", "mcap-ros1-zstd-size"])
+def test_an_mcap_chunk_whose_size_disagrees_with_its_data_is_refused(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str
+) -> None:
+    """Seen (ros2): rosbags took the sizes of the chunk index and read the chunk as valid."""
+    src, o, named = commands[case]
+    line = one_line(o, src)
+    assert f"the chunk at byte {named['at']}" in line, line
+    assert f"{named['n']:,}" in line, line
