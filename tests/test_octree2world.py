@@ -267,9 +267,9 @@ def test_octree_file_is_made_beside_the_world_with_the_same_bytes(tmp_path: Path
     keys, occupied = _wall_voxels()
     cfg = load_config(None, {})
     with voxels.octree_folder(voxels.Voxels(keys, occupied, 0.1), source=GEB079, cfg=cfg) as a:
-        write_world_folder(a, tmp_path / "a", cfg, overwrite=False)
+        write_world_folder(a, tmp_path / "a", overwrite=False)
     b = voxels.voxels_folder(keys, occupied, 0.1, source=GEB079, cfg=cfg)
-    write_world_folder(b, tmp_path / "b", cfg, overwrite=False)
+    write_world_folder(b, tmp_path / "b", overwrite=False)
     bt = (tmp_path / "a/octree.bt").read_bytes()
     assert bt == bt_bytes(resolution=0.1, keys=keys, occupied=occupied)
     for name in ("map/map.pgm", "world_gz.sdf", "preview.png"):
@@ -289,7 +289,7 @@ def test_a_failing_octree_file_fails_the_world_and_writes_nothing(tmp_path: Path
     ):
         cfg = load_config(None, {})
         folder = voxels.voxels_folder(keys, occupied, 0.1, source=GEB079, cfg=cfg)
-        write_world_folder(folder.with_extra(extra), tmp_path / "w", cfg, overwrite=False)
+        write_world_folder(folder.with_extra(extra), tmp_path / "w", overwrite=False)
     assert not (tmp_path / "w").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 

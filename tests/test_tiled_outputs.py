@@ -74,7 +74,7 @@ def height_world(
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
     cfg = config(**overrides)
     folder = maps.height_folder(grid, Path("hills.xyz"), cfg)
-    return write_world_folder(folder, out, cfg, overwrite=False)
+    return write_world_folder(folder, out, overwrite=False)
 
 
 def centres(
@@ -409,7 +409,7 @@ def test_failure_mid_way_leaves_nothing_behind(
     grid = HeightGrid(rolling(70, 45), np.ones((70, 45), dtype=bool), RES, ORIGIN)
     with pytest.raises(OSError, match="disk full"):
         write_world_folder(
-            maps.height_folder(grid, Path("hills.xyz"), config()), old, config(), overwrite=True
+            maps.height_folder(grid, Path("hills.xyz"), config()), old, overwrite=True
         )
     assert calls == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]
@@ -417,5 +417,5 @@ def test_failure_mid_way_leaves_nothing_behind(
     calls = 0
     with pytest.raises(OSError, match="disk full"):
         folder = maps.height_folder(grid, Path("hills.xyz"), config())
-        write_world_folder(folder, tmp_path / "new", config(), overwrite=False)
+        write_world_folder(folder, tmp_path / "new", overwrite=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w"]

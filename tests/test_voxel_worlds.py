@@ -426,7 +426,7 @@ def test_floors_are_not_taken_for_scan_planes(tmp_path: Path) -> None:
     ):
         out = tmp_path / name
         folder = voxels_folder(keys.astype(np.uint16), occupied, 0.1, source=GEB079, cfg=cfg)
-        write_world_folder(folder, out, cfg, overwrite=False)
+        write_world_folder(folder, out, overwrite=False)
         lo, hi, _ = _walls(out)
         assert (lo, hi) == pytest.approx((-0.1, 0.0), abs=1e-6), name
         grid = _map(out)

@@ -348,7 +348,7 @@ def test_terrain_tiles_read_back(tmp_path: Path) -> None:
         },
     )
     out = tmp_path / "out"
-    write_world_folder(maps.height_folder(grid, Path("hills.xyz"), cfg), out, cfg, overwrite=False)
+    write_world_folder(maps.height_folder(grid, Path("hills.xyz"), cfg), out, overwrite=False)
     checked = check_world_file(out / "world_gz.sdf", "gz", tmp_path / "probe")
     assert checked["heightmap"] >= 6
 

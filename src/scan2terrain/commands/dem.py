@@ -137,7 +137,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
         ),
     )
     folder = folder.noted(then=notes).with_extra(extra)
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return write_world_folder(folder, out, overwrite=overwrite)
 
 
 def _dem_notes(source: Path, dem: Dem, res: float, hm: Terrain, *, with_classic: bool) -> list[str]:

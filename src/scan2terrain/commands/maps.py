@@ -66,7 +66,7 @@ def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = Fals
     refuse_existing(out, overwrite, (meta.image,))  # the image may live elsewhere
     trinary = classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
     folder = occupancy_folder(grid.with_data(trinary), Path(yaml_path), cfg)
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return write_world_folder(folder, out, overwrite=overwrite)
 
 
 def occupancy_folder(
@@ -204,7 +204,7 @@ def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = F
             around=terrain_around(hm, cfg.terrain.upsample, 0.0),
         ),
     )
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return write_world_folder(folder, out, overwrite=overwrite)
 
 
 # --- walls (world.geometry mesh | boxes | polylines) -----------------------------------------

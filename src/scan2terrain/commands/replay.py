@@ -258,8 +258,8 @@ def fidelity_command(
     result.headline = f"a replay of {source.name} in {Path(world).name}"
     if (report.overall.within_10cm or 0.0) < WARN_BELOW:
         warnings.warn(advice(report), FidelityWarning, stacklevel=2)
-    folder = WorldFolder(source, result, [], None, None, files)
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    folder = WorldFolder(source, result, [], None, None, files, cfg)
+    return write_world_folder(folder, out, overwrite=overwrite)
 
 
 @dataclass

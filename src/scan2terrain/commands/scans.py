@@ -105,7 +105,7 @@ def bag2world(
         if planned.scan_topics:  # a map, or a trajectory only, is read as without --stream
             streamed = stream.stream_bag(bags, cfg, stream_progress)
             folder = stream.streamed_folder(streamed, Path(bags[0]), cfg)
-            return write_world_folder(folder, out, cfg, overwrite=overwrite)
+            return write_world_folder(folder, out, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         corrected = correct_plan(bag, cfg, plan)
@@ -115,7 +115,7 @@ def bag2world(
                 if plan.trajectory_only
                 else _map_topic_folder(bag, plan, cfg)
             )
-            return write_world_folder(folder, out, cfg, overwrite=overwrite)
+            return write_world_folder(folder, out, overwrite=overwrite)
         columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
         recorder = BeamRecorder()
         tree, ingest = bag_octree(bag, cfg, plan, progress, columns, recorder=recorder)
@@ -126,7 +126,7 @@ def bag2world(
         voxels, source=bag.path, cfg=cfg, start=ingest.start, columns=columns, replay=replay,
         notes=[*ingest.notes, *corrected],
     ) as folder:  # fmt: skip
-        return write_world_folder(folder, out, cfg, overwrite=overwrite)
+        return write_world_folder(folder, out, overwrite=overwrite)
 
 
 def _map_topic_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
@@ -177,7 +177,7 @@ def _trajectory_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
     notes = [*plan.reasons, f"trajectory: {len(track)} poses of {what}, {span:.3f} s"]
     result = Result(notes=notes)
     result.no_world = "nothing to map, the bag has no scans; the robot's trajectory only"
-    return WorldFolder(bag.path, result, [], None, None, {"trajectory.tum": data})
+    return WorldFolder(bag.path, result, [], None, None, {"trajectory.tum": data}, cfg)
 
 
 def bag_octree(
@@ -413,7 +413,7 @@ def cloud2world(
         source = url_path(files[0])
         cfg = georeferenced(cfg, np.asarray(streamed.origin), files, chosen)
         folder = stream.streamed_folder(streamed, source, cfg).noted(first=chosen)
-        return write_world_folder(folder, out, cfg, overwrite=overwrite)
+        return write_world_folder(folder, out, overwrite=overwrite)
     for f in files:
         if is_url(f):
             raise InputError(str(f), "URLs are read with --stream (LAS/LAZ)")
@@ -472,7 +472,7 @@ def cloud2world(
     with octree_folder(
         taken, source=Path(files[0]), cfg=cfg, colours=colours, columns=columns, notes=notes
     ) as folder:
-        return write_world_folder(folder, out, cfg, overwrite=overwrite)
+        return write_world_folder(folder, out, overwrite=overwrite)
 
 
 def _cloud_resolution(

@@ -71,7 +71,7 @@ def octree2world(
         with octree_folder(
             voxels, source=source, cfg=cfg, columns=columns, replay=replay
         ) as folder:
-            return write_world_folder(folder, out, cfg, overwrite=overwrite)
+            return write_world_folder(folder, out, overwrite=overwrite)
     from scan2terrain.grids.projection import leaf_columns
 
     bt = read_bt(source)
@@ -81,7 +81,7 @@ def octree2world(
     except ValueError as exc:
         raise InputError(source, f"{exc}: too large to project") from exc
     folder = voxels_folder(keys, occupied, bt.resolution, source=source, cfg=cfg, runs=runs)
-    return write_world_folder(folder, out, cfg, overwrite=overwrite)
+    return write_world_folder(folder, out, overwrite=overwrite)
 
 
 @dataclass(frozen=True)

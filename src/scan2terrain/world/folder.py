@@ -133,6 +133,9 @@ class WorldFolder:
     map_out: OccupancyGrid | None  #: the navigation map in world axes, or None
     preview: Preview | None  #: None: nothing to preview (no world)
     extra: ExtraFiles  #: more files at the top (octree.bt, occupied voxels)
+    #: The effective config the worlds were built with (``auto`` values resolved), written as
+    #: scan2terrain.yaml.
+    cfg: Config
 
     def noted(self, first: Sequence[str] = (), then: Sequence[str] = ()) -> WorldFolder:
         """The folder with ``first`` put before the report's notes (what was read before the
@@ -147,10 +150,10 @@ class WorldFolder:
         return dataclasses.replace(self, extra=both)
 
 
-def write_world_folder(folder: WorldFolder, out: Path, cfg: Config, *, overwrite: bool) -> Result:
+def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Result:
     """The one writer of world folders, atomically: map/, each simulator's models and world,
     spawn.yaml, preview, extra files, the effective config. Returns the completed report."""
-    result = folder.result
+    result, cfg = folder.result, folder.cfg
     result.out = out
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")

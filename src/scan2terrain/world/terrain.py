@@ -73,7 +73,7 @@ def terrain_folder(
                 z_offset=z_offset,
             )
         )  # fmt: skip
-    return WorldFolder(source, result, parts, map_out, preview, {})
+    return WorldFolder(source, result, parts, map_out, preview, {}, cfg)
 
 
 def tiles_folder(
@@ -143,7 +143,7 @@ def tiles_folder(
     part = sim_world(
         whole, files, cfg=cfg, comment=world_comment, spawn=spawn, placements=placements
     )
-    return WorldFolder(source, result, [part], map_out, preview, {})
+    return WorldFolder(source, result, [part], map_out, preview, {}, cfg)
 
 
 def _terrain_model(

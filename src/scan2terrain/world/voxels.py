@@ -255,7 +255,7 @@ def voxel_mesh_folder(
         parts.append(sim_world(p, model, cfg=cfg, comment=described, spawn=spawn))
     preview = Preview(preview_png(map_out.data, None, occupancy=True), result.preview_label)
     # The projection is in world axes already (yaw 0, on voxel boundaries).
-    return WorldFolder(source, result, parts, map_out, preview, {})
+    return WorldFolder(source, result, parts, map_out, preview, {}, cfg)
 
 
 def _slab_around(grid: OccupancyGrid, ground: sdf.Ground) -> tuple[NDArray[np.bool_], Around]:

@@ -120,7 +120,7 @@ def walls_folder(
         files[f"models/{name}/model.sdf"] = made.model_sdf(p, described)
         files[f"models/{name}/model.config"] = sdf.model_config(p, f"Walls from {source.name}")
         parts.append(sim_world(p, files, cfg=cfg, comment=described, spawn=spawn))
-    return WorldFolder(source, result, parts, map_out, preview, {})
+    return WorldFolder(source, result, parts, map_out, preview, {}, cfg)
 
 
 def _walls(
