@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import shutil
 import struct
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -38,6 +39,8 @@ def one_line(o: Outcome, src: Path) -> str:
     assert not o.new_files, o.describe()
     return lines[0]
 
+
+Inputs = dict[str, tuple[Path, list[str], dict[str, int]]]
 
 # --- MCAP ---------------------------------------------------------------------------------------
 
@@ -124,9 +127,9 @@ def _set_chunk_field(mcap: Path, field: str, value: int) -> int:
     return at
 
 
-def mcap_inputs(tmp: Path) -> dict[str, tuple[Path, list[str], dict[str, int]]]:
+def mcap_inputs(tmp: Path) -> Inputs:
     """name -> (the input, its command, what the refusal must name)."""
-    out: dict[str, tuple[Path, list[str], dict[str, int]]] = {}
+    out: Inputs = {}
     for name in ("inner", "past-file", "size"):
         folder, mcap = _room_rosbag2(tmp / f"ros2-{name}")
         if name == "inner":  # an unknown record: skipped, the scans before it were kept
@@ -158,10 +161,89 @@ def mcap_inputs(tmp: Path) -> dict[str, tuple[Path, list[str], dict[str, int]]]:
     return out
 
 
+# --- PNG ----------------------------------------------------------------------------------------
+
+
+def png(
+    width: int,
+    height: int,
+    depth: int,
+    colour: int,
+    rows: bytes,
+    *,
+    before: list[tuple[bytes, bytes]] = (),  # type: ignore[assignment]
+    after: list[tuple[bytes, bytes]] = (),  # type: ignore[assignment]
+) -> bytes:
+    """A PNG of these IHDR fields and raw ``rows`` (filter bytes included), every chunk's CRC
+    right: ``before`` the IDAT chunk, ``after`` it."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
+    ihdr = struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)
+    return b"".join(
+        [
+            b"\x89PNG\r\n\x1a\n",
+            chunk(b"IHDR", ihdr),
+            *(chunk(k, d) for k, d in before),
+            chunk(b"IDAT", zlib.compress(rows)),
+            *(chunk(k, d) for k, d in after),
+            chunk(b"IEND", b""),
+        ]
+    )
+
+
+def _grey_rows(width: int, height: int, row_bytes: int, fill: int = 0x11) -> bytes:
+    """``height`` rows of ``row_bytes`` bytes, each after filter byte 0."""
+    return (b"\0" + bytes([fill]) * row_bytes) * height
+
+
+PALETTE = bytes(range(48))  # 16 entries
+
+
+def png_inputs(tmp: Path) -> Inputs:
+    """Palette images without their palette, bit depths PNG does not allow with the colour
+    type, palettes that cannot be, and palette indices past the palette."""
+    w, h = 24, 16
+    files = {
+        # colour type 3 without PLTE: Pillow decoded it with a palette of its own
+        "png-palette-missing": png(w, h, 8, 3, _grey_rows(w, h, w)),
+        "png-palette-after-idat": png(w, h, 8, 3, _grey_rows(w, h, w), after=[(b"PLTE", PALETTE)]),
+        "png-palette-ragged": png(
+            w, h, 8, 3, _grey_rows(w, h, w), before=[(b"PLTE", PALETTE[:-1])]
+        ),
+        "png-palette-index": png(w, h, 8, 3, _grey_rows(w, h, w, 200), before=[(b"PLTE", PALETTE)]),
+        "png-depth-rgb4": png(w, h, 4, 2, _grey_rows(w, h, w * 3 // 2)),
+        "png-depth-palette16": png(
+            w, h, 16, 3, _grey_rows(w, h, w * 2), before=[(b"PLTE", PALETTE)]
+        ),
+        "png-depth-grey3": png(w, h, 3, 0, _grey_rows(w, h, w * 3 // 8)),
+        "png-depth-ga4": png(w, h, 4, 4, _grey_rows(w, h, w)),
+        "png-colour-type-5": png(w, h, 8, 5, _grey_rows(w, h, w * 2)),
+    }
+    out: Inputs = {}
+    for name, data in files.items():
+        path = tmp / f"{name}.png"
+        path.write_bytes(data)
+        out[name] = (
+            path,
+            ["image2world", "{in}", "-o", "{out}", "--resolution", "0.1", *WORLD],
+            {},
+        )
+    yaml = tmp / "map.yaml"
+    yaml.write_text(
+        "image: png-palette-missing.png\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    out["png-palette-missing-map"] = (yaml, ["map2world", "{in}", "-o", "{out}", *WORLD], {})
+    return out
+
+
 # --- the commands, run once -----------------------------------------------------------------------
 
-Inputs = dict[str, tuple[Path, list[str], dict[str, int]]]
-BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs]
+BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs]
 
 
 @pytest.fixture(scope="module")
@@ -216,3 +298,53 @@ def test_an_mcap_chunk_whose_size_disagrees_with_its_data_is_refused(
     line = one_line(o, src)
     assert f"the chunk at byte {named['at']}" in line, line
     assert f"{named['n']:,}" in line, line
+
+
+# --- 2. PNG: a palette image needs its palette, a bit depth its colour type -----------------------
+
+
+@pytest.mark.parametrize(
+    ("case", "named"),
+    [
+        ("png-palette-missing", "colour type 3 (palette) without a PLTE chunk"),
+        (
+            "png-palette-after-idat",
+            "colour type 3 (palette) without a PLTE chunk before its image data",
+        ),
+        ("png-palette-ragged", "PLTE chunk of 47 bytes"),
+        ("png-palette-index", "index 200 past its 16 palette entries"),
+        ("png-depth-rgb4", "bit depth 4 with colour type 2 (RGB)"),
+        ("png-depth-palette16", "bit depth 16 with colour type 3 (palette)"),
+        ("png-depth-grey3", "bit depth 3 with colour type 0 (grey)"),
+        ("png-depth-ga4", "bit depth 4 with colour type 4 (grey and alpha)"),
+        ("png-colour-type-5", "colour type 5"),
+        ("png-palette-missing-map", "colour type 3 (palette) without a PLTE chunk"),
+    ],
+)
+def test_a_png_against_the_format_s_rules_is_refused(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str, named: str
+) -> None:
+    """Seen (png-palette-missing): read as valid, Pillow making up a palette."""
+    src, o, _ = commands[case]
+    if case.endswith("-map"):  # the map's image is named, not its YAML
+        src = src.parent / "png-palette-missing.png"
+    line = one_line(o, src)
+    assert named in line, line
+
+
+@pytest.mark.parametrize("colours", [2, 4, 16, 200])
+def test_palette_pngs_as_pillow_writes_them_are_read(tmp_path: Path, colours: int) -> None:
+    """Pillow writes 1, 2, 4 or 8 bits a pixel and a palette of the colours used."""
+    import numpy as np
+    from PIL import Image
+
+    from scan2terrain.readers.image import read_grey_image
+
+    index = (np.arange(24 * 16).reshape(16, 24) % colours).astype(np.uint8)
+    img = Image.fromarray(index, mode="P")
+    img.putpalette([v for k in range(colours) for v in (k, 255 - k, k // 2)])
+    path = tmp_path / "p.png"
+    img.save(path, bits=max(1, (colours - 1).bit_length()))
+    assert path.read_bytes()[25] == 3  # colour type 3: a palette image
+    grey = read_grey_image(path)
+    assert grey.values.shape == (16, 24) and int(grey.values.max()) > 0

@@ -9,6 +9,10 @@ module adds what Pillow leaves out:
   CRC, and damaged deflate data that still inflates gave an image with most pixels wrong; a
   PNG that ends before its IEND chunk is refused as truncated (Pillow's
   ``LOAD_TRUNCATED_IMAGES`` stays False, so other formats cut short are refused too);
+* a PNG's header against PNG's rules, before Pillow guesses: IHDR first, a colour type PNG
+  has and a bit depth that type allows (:data:`PNG_DEPTHS`), methods PNG defines; a palette
+  image (colour type 3) needs its PLTE chunk before its image data (Pillow made up a grey
+  palette), of whole entries, at most 256, and no pixel may use an entry past its end;
 * binary PGM/PPM samples whose maxval is not 255 (or 65535) are decoded here with numpy, and
   samples above the maxval refused: Pillow clamps them (a map's unknown cells became free), and
   decodes such files with a Python loop per sample;
@@ -67,8 +71,7 @@ def open_pixels(
     try:
         with path.open("rb") as f:
             magic = f.read(len(_PNG_SIGNATURE))
-            if magic == _PNG_SIGNATURE:
-                _check_png(path, f)
+            palette = _check_png(path, f) if magic == _PNG_SIGNATURE else None
         why = elevation_raster(path) if pictures_only and magic[:4] in _TIFF_MAGIC else None
         if why is not None:
             raise InputError(
@@ -93,6 +96,8 @@ def open_pixels(
                 if img.format == "PPM" and img.tile and img.tile[0][0] == "ppm":
                     return _scaled_pnm(path, img)
                 img.load()
+                if palette is not None:
+                    _check_indices(path, img, palette)
                 return _channels(img, path)
     except UnidentifiedImageError:
         raise InputError(path, "not an image file Pillow can read") from None
@@ -180,13 +185,47 @@ def _tag_int(value: object) -> int | None:
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: The longest chunk the PNG specification allows (2^31 - 1 bytes).
 _PNG_MAX_CHUNK = (1 << 31) - 1
+#: PNG's colour types, and the bit depths each allows (the PNG specification, table 11.1).
+PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
+_PNG_COLOURS = {0: "grey", 2: "RGB", 3: "palette", 4: "grey and alpha", 6: "RGBA"}
+_PALETTE = 3
 
 
-def _check_png(path: Path, f: BinaryIO) -> None:
+def _check_ihdr(path: Path, data: bytes) -> int:
+    """The colour type of a PNG whose IHDR chunk holds ``data``, checked against PNG's rules."""
+    bad = "cannot decode image: the PNG's header breaks the format's rules"
+    if len(data) != 13:
+        raise InputError(path, f"{bad}: an IHDR chunk of {len(data)} bytes, not 13")
+    _, _, depth, colour, compression, filtering, interlace = struct.unpack(">IIBBBBB", data)
+    if colour not in PNG_DEPTHS:
+        raise InputError(
+            path,
+            f"{bad}: colour type {colour} is none of PNG's ({', '.join(map(str, PNG_DEPTHS))})",
+        )
+    allowed = PNG_DEPTHS[colour]
+    if depth not in allowed:
+        raise InputError(
+            path,
+            f"{bad}: bit depth {depth} with colour type {colour} ({_PNG_COLOURS[colour]}), "
+            f"which allows {', '.join(map(str, allowed))}",
+        )
+    for name, value, most in (("compression", compression, 0), ("filter", filtering, 0),
+                              ("interlace", interlace, 1)):  # fmt: skip
+        if value > most:
+            raise InputError(path, f"{bad}: {name} method {value}, which PNG does not define")
+    return colour
+
+
+def _check_png(path: Path, f: BinaryIO) -> int | None:
     """Every chunk of the PNG ``f`` (just past its signature) whole and matching its CRC, up to
-    IEND; read 1 MiB at a time (zlib.crc32: about a millisecond a megabyte)."""
+    IEND, read 1 MiB at a time (zlib.crc32: about a millisecond a megabyte); its header and
+    palette against PNG's rules. Returns the number of palette entries of a palette image, or
+    None for the other colour types."""
     truncated = "cannot decode image: truncated PNG"
     corrupt = "cannot decode image: corrupt PNG"
+    rules = "cannot decode image: the PNG breaks the format's rules"
+    colour: int | None = None
+    entries: int | None = None
     pos = len(_PNG_SIGNATURE)
     while True:
         head = f.read(8)
@@ -198,11 +237,14 @@ def _check_png(path: Path, f: BinaryIO) -> None:
             raise InputError(path, f"{corrupt}: a chunk length of {length} at byte {pos}")
         crc = zlib.crc32(kind)
         left = length
+        kept = b""
         while left:
             data = f.read(min(left, 1 << 20))
             if not data:
                 break
             crc = zlib.crc32(data, crc)
+            if left == length and kind in (b"IHDR", b"PLTE"):
+                kept = data
             left -= len(data)
         stored = f.read(4)
         if left or len(stored) < 4:
@@ -214,9 +256,42 @@ def _check_png(path: Path, f: BinaryIO) -> None:
             )
         if struct.unpack(">I", stored)[0] != crc:
             raise InputError(path, f"{corrupt}: its {name} chunk at byte {pos} fails its CRC check")
+        if colour is None:
+            if kind != b"IHDR":
+                raise InputError(path, f"{rules}: its first chunk is {name}, not IHDR")
+            colour = _check_ihdr(path, kept)
+        elif kind == b"PLTE" and colour == _PALETTE:
+            if entries is not None:
+                raise InputError(path, f"{rules}: a second PLTE chunk at byte {pos}")
+            if not (0 < length <= 3 * 256 and length % 3 == 0):
+                raise InputError(
+                    path,
+                    f"{rules}: a PLTE chunk of {length} bytes at byte {pos}; a palette is 1 to "
+                    "256 entries of 3 bytes",
+                )
+            entries = length // 3
+        elif kind == b"IDAT" and colour == _PALETTE and entries is None:
+            raise InputError(
+                path,
+                f"{rules}: colour type 3 (palette) without a PLTE chunk before its image data "
+                "(a palette image needs its palette)",
+            )
         if kind == b"IEND":
-            return
+            return entries
         pos += length + 12
+
+
+def _check_indices(path: Path, img: Any, entries: int) -> None:
+    """No pixel of the palette image ``img`` (decoded) uses an entry past its ``entries``."""
+    if img.mode not in ("P", "PA"):
+        return
+    top = int(img.getextrema()[1] if img.mode == "P" else img.getextrema()[0][1])
+    if top >= entries:
+        raise InputError(
+            path,
+            "cannot decode image: the PNG breaks the format's rules: its pixels use palette "
+            f"index {top} past its {entries} palette entries",
+        )
 
 
 def _scaled_pnm(path: Path, img: Any) -> Channels:
