@@ -196,7 +196,8 @@ def _check_ihdr(path: Path, data: bytes) -> int:
     bad = "cannot decode image: the PNG's header breaks the format's rules"
     if len(data) != 13:
         raise InputError(path, f"{bad}: an IHDR chunk of {len(data)} bytes, not 13")
-    _, _, depth, colour, compression, filtering, interlace = struct.unpack(">IIBBBBB", data)
+    fields: tuple[int, ...] = struct.unpack(">IIBBBBB", data)
+    depth, colour, compression, filtering, interlace = fields[2:]
     if colour not in PNG_DEPTHS:
         raise InputError(
             path,
