@@ -1,4 +1,5 @@
-"""One root error for the project, one subclass per stage.
+"""One root error for the project, one subclass per kind of fault: the input, the config, the
+output.
 
 The CLI catches :class:`Scan2TerrainError` only, prints its message as one line and exits 2.
 Errors about files also inherit the matching builtin, as rasterio does, so callers that catch
@@ -7,6 +8,8 @@ Errors about files also inherit the matching builtin, as rasterio does, so calle
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -28,6 +31,16 @@ class InputError(Scan2TerrainError, ValueError):
     def __reduce__(self) -> tuple[type[InputError], tuple[Path | str | None, str]]:
         # Pickled with its two arguments, so it crosses to and from Dask workers intact.
         return (type(self), (self.path, self.problem))
+
+
+@contextmanager
+def about(path: Path | str, context: str = "") -> Iterator[None]:
+    """An :class:`InputError` raised inside, by a stage that does not know the file (the octree,
+    a batch of points), re-raised naming ``path`` (and ``context``: where in the file)."""
+    try:
+        yield
+    except InputError as exc:
+        raise InputError(path, f"{context}{exc.problem}") from exc
 
 
 class ConfigError(Scan2TerrainError, ValueError):

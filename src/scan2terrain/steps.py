@@ -108,25 +108,6 @@ def filter_grey(values: NDArray[ScalarT], cfg: Config) -> NDArray[ScalarT]:
     return run_filter(values, cfg.filter.kind, cfg.filter.size, fallback="median")
 
 
-def terrain_heightmap(
-    heights: NDArray[np.float32],
-    resolution: float,
-    origin: Pose2D,
-    cfg: Config,
-    *,
-    pad_height: float,
-) -> Heightmap:
-    """World-aligned heights (metres, every cell known) -> up-sampled (``terrain.upsample``)
-    -> the heightmap image (``terrain.bit_depth``), padded at ``pad_height``."""
-    t = cfg.terrain
-    fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
-    return make_heightmap(
-        HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin),
-        bit_depth=t.bit_depth,
-        pad_height=pad_height,
-    )
-
-
 def terrain_layout(
     heights: NDArray[np.float32],
     resolution: float,
@@ -135,8 +116,10 @@ def terrain_layout(
     *,
     pad_height: float,
 ) -> Terrain:
-    """As :func:`terrain_heightmap`, but a grid of more than ``terrain.max_side`` samples a side
-    (after up-sampling) becomes terrain tiles (:class:`~.exporters.tiles.TiledHeightmap`)."""
+    """World-aligned heights (metres, every cell known) -> up-sampled (``terrain.upsample``)
+    -> the heightmap image (``terrain.bit_depth``), padded at ``pad_height``; a grid of more
+    than ``terrain.max_side`` samples a side (after up-sampling) becomes terrain tiles
+    (:class:`~.exporters.tiles.TiledHeightmap`)."""
     t = cfg.terrain
     fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
     grid = HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin)

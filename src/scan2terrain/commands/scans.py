@@ -26,7 +26,7 @@ from scan2terrain.commands.maps import height_folder, occupancy_folder
 from scan2terrain.commands.replay import scan_replay
 from scan2terrain.commands.voxels import Voxels, cast_hits, octree_folder, point_columns
 from scan2terrain.config import Config
-from scan2terrain.errors import ConfigError, InputError
+from scan2terrain.errors import ConfigError, InputError, about
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import (
@@ -59,8 +59,6 @@ MAP_OCCUPIED_ABOVE, MAP_FREE_BELOW = 64.0, 26.0
 class Ingest:
     """What went into the octree, for the report."""
 
-    scans: int
-    points: int
     notes: tuple[str, ...]
     start: Start | None = None  #: the first scan's sensor pose: where the robot started
 
@@ -213,10 +211,8 @@ def bag_octree(
             if recorder is not None:
                 recorder.add(scan, hits)
             if batch is not None:
-                try:
+                with about(bag.path):
                     batch.add(hits)
-                except InputError as exc:
-                    raise InputError(bag.path, exc.problem) from exc
             if columns is not None:
                 columns.add(hits)
         counts.inserted += 1
@@ -224,25 +220,19 @@ def bag_octree(
         if progress is not None:
             progress(counts, total)
     if batch is not None:
-        try:
+        with about(bag.path):
             batch.flush()
-        except InputError as exc:
-            raise InputError(bag.path, exc.problem) from exc
     refuse_unused(bag.path, counts, "used")
     notes = [*plan.reasons, f"scans: {counts.inserted} inserted ({counts.points:,} points)"]
     notes += skipped_notes(counts)
     if plan.tf is not None:
         notes += [f"tf: {p}" for p in plan.tf.problems()]
-    return tree, Ingest(counts.inserted, counts.points, tuple(notes), start)
+    return tree, Ingest(tuple(notes), start)
 
 
 def _insert(tree: VoxelOctree, scan: Scan, source: Path) -> None:
-    try:
+    with about(source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: "):
         tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
-    except InputError as exc:
-        raise InputError(
-            source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: {exc.problem}"
-        ) from exc
 
 
 class EndpointBatch:
@@ -440,15 +430,13 @@ def cloud2world(
         pts = sensor.apply(local) if raycast else local
         if columns is not None:  # added on another thread while the octree takes them
             columns.add(cast_hits(pts, sensor.translation, cfg) if raycast else pts)
-        try:
+        with about(path):
             if raycast:
                 stats = tree.insert_scan(pts, sensor.translation, max_range=cfg.octree.max_range)
             else:
                 stats = tree.insert_endpoints(pts)
             if colours is not None and pts_rgb is not None:
                 colours.add(pts, pts_rgb)
-        except InputError as exc:
-            raise InputError(path, exc.problem) from exc
         if stats.out_of_range:
             outside[Path(path)] = stats.out_of_range
     keys, occupied = tree.occupied_and_free()

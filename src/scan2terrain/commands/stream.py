@@ -6,7 +6,8 @@ cloud2world/bag2world with ``stream.enabled`` (``--stream``):
     bags: time slices) -> each chunk read ``stream.chunk_points`` at a time -> end points into a
     :class:`~scan2terrain.grids.tiles.TileSet` -> partial results (their cells with a point,
     :class:`~scan2terrain.grids.tiles.TileRecords`) merged (exact, any order) -> column
-    statistics or occupancy (the tiles freed) -> the world, written once, atomically
+    statistics or occupancy (the tiles freed) -> the world folder (:func:`streamed_folder`),
+    which the command (commands/scans.py) writes once, atomically
 With ``stream.workers`` or ``stream.scheduler`` every chunk is a Dask task: workers read their
 chunk themselves (by path: they must see the same files) and send back its tiles; the client
 merges them. Without either, nothing imports Dask.
@@ -16,7 +17,7 @@ not: ray casting (an octree's clamped log-odds depend on the order of updates, s
 do not merge exactly; ray-cast bags and clouds take the octree path on one process), bags' tf
 pass (read once by the client, sent to every task), the merge and the writing of outputs.
 
-Like ingest.py, this module composes the stages and owns no algorithm.
+Like the other commands, this module composes the stages and owns no algorithm.
 """
 
 from __future__ import annotations

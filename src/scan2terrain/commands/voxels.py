@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
-from scan2terrain.errors import InputError
+from scan2terrain.errors import InputError, about
 from scan2terrain.steps import (
     PointColumns,
     fill_holes,
@@ -234,10 +234,8 @@ def build_octree(
     tree = new_tree(cfg)
     counts = ScanCounts()
     for scan in read_scans(source):
-        try:
+        with about(source):
             tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
-        except InputError as exc:
-            raise InputError(source, exc.problem) from exc
         if columns is not None or recorder is not None:
             hits = cast_hits(scan.points, scan.origin, cfg)
             if columns is not None:

@@ -132,10 +132,10 @@ class TileSet:
     """Per-cell count, z sum, min and max of points, in tiles of the lattice.
 
     Storage: ``cells`` int64 ``(n_tiles, tile * tile, 3)``, one 24-byte record per cell: count,
-    z sum (units of 1/SUM_SCALE m), then float32 min and max in the last word (read through
-    :attr:`count`, :attr:`zsum`, :attr:`zmin`, :attr:`zmax`; min/max meaningful where
-    count > 0). ``index`` maps a tile ``(tile_row, tile_col)`` to its row. Rows beyond
-    ``len(index)`` are spare capacity: zeroed virtual memory that costs nothing until written.
+    z sum (units of 1/SUM_SCALE m), then float32 min and max in the last word (the kernels
+    read them; :attr:`count` is the counts; min/max meaningful where count > 0). ``index``
+    maps a tile ``(tile_row, tile_col)`` to its row. Rows beyond ``len(index)`` are spare
+    capacity: zeroed virtual memory that costs nothing until written.
     """
 
     def __init__(self, lattice: Lattice) -> None:
@@ -146,18 +146,6 @@ class TileSet:
     @property
     def count(self) -> NDArray[np.int64]:
         return self.cells[..., 0]
-
-    @property
-    def zsum(self) -> NDArray[np.int64]:
-        return self.cells[..., 1]
-
-    @property
-    def zmin(self) -> NDArray[np.float32]:
-        return self.cells.view(np.float32)[..., 4]
-
-    @property
-    def zmax(self) -> NDArray[np.float32]:
-        return self.cells.view(np.float32)[..., 5]
 
     @property
     def points(self) -> int:
