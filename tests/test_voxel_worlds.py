@@ -82,8 +82,15 @@ def test_the_meshes_hold_exactly_the_voxels(built: tuple[Path, np.ndarray]) -> N
     assert volume == pytest.approx(len(keys) * R**3, rel=1e-3)
     assert inside.all()  # every voxel centre is inside a chunk
     assert not outside.any()  # under the table, under the overhang, the doorway, between floors
-    spawn = yaml.safe_load((out / "spawn.yaml").read_text())
-    assert spawn is not None
+    # The spawn pose stands on the scene's floor (top z = 0, the world frame is the map frame
+    # here), inside it, clear of every voxel 1.5 m above across the 1.5 m footprint.
+    x, y, z, roll, pitch, _ = yaml.safe_load((out / "spawn.yaml").read_text())["gz"]["pose"]
+    assert (roll, pitch) == (0, 0) and z == pytest.approx(0.0, abs=1e-6)
+    assert 0.75 <= x <= 6 - 0.75 and 0.75 <= y <= 4 - 0.75
+    centres = (keys + 0.5) * R
+    above = centres[:, 2] > 0
+    near = (np.abs(centres[:, 0] - x) < 0.75) & (np.abs(centres[:, 1] - y) < 0.75)
+    assert not (above & near & (centres[:, 2] < 1.5)).any()
 
 
 def test_gazebo_parses_the_world_and_loads_every_chunk(
