@@ -241,9 +241,46 @@ def png_inputs(tmp: Path) -> Inputs:
     return out
 
 
+# --- map YAML ------------------------------------------------------------------------------------
+
+#: (key, value as written in the YAML, the float read) of each hostile map YAML.
+MAP_VALUES = {
+    "map-resolution-e-300": ("resolution", "1e-300", 1e-300),
+    "map-resolution-denormal": ("resolution", "5e-324", 5e-324),
+    "map-resolution-nano": ("resolution", "1e-9", 1e-9),
+    "map-resolution-huge": ("resolution", "2e5", 2e5),
+    "map-origin-x": ("origin", "[2e9, 0, 0]", 2e9),
+    "map-origin-y": ("origin", "[0, -5e300, 0]", -5e300),
+}
+
+
+def map_yaml(folder: Path, name: str, **values: str) -> Path:
+    """A map_server YAML beside a small PGM, with ``values`` in place of the usual ones."""
+    import numpy as np
+    from PIL import Image
+
+    image = folder / "m.pgm"
+    if not image.exists():
+        grid = np.full((20, 30), 254, np.uint8)
+        grid[5:8, 5:25] = 0
+        Image.fromarray(grid).save(image)
+    fields = {"image": "m.pgm", "resolution": "0.05", "origin": "[0, 0, 0]", "negate": "0",
+              "occupied_thresh": "0.65", "free_thresh": "0.196", **values}  # fmt: skip
+    path = folder / f"{name}.yaml"
+    path.write_text("".join(f"{k}: {v}\n" for k, v in fields.items()))
+    return path
+
+
+def map_inputs(tmp: Path) -> Inputs:
+    return {
+        name: (map_yaml(tmp, name, **{key: text}), ["map2world", "{in}", "-o", "{out}", *WORLD], {})
+        for name, (key, text, _) in MAP_VALUES.items()
+    }
+
+
 # --- the commands, run once -----------------------------------------------------------------------
 
-BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs]
+BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs, map_inputs]
 
 
 @pytest.fixture(scope="module")
@@ -348,3 +385,33 @@ def test_palette_pngs_as_pillow_writes_them_are_read(tmp_path: Path, colours: in
     assert path.read_bytes()[25] == 3  # colour type 3: a palette image
     grey = read_grey_image(path)
     assert grey.values.shape == (16, 24) and int(grey.values.max()) > 0
+
+
+# --- 3. map YAML: a resolution and an origin a map can have ---------------------------------------
+
+
+@pytest.mark.parametrize("case", list(MAP_VALUES))
+def test_a_map_yaml_resolution_or_origin_beyond_the_physical_limits_is_refused(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str
+) -> None:
+    """Seen: 1e-300 and 5e-324 m cells were exit 1 ("need at least one array to
+    concatenate"), 1e-9 and 2e5 m cells wrote worlds."""
+    src, o, _ = commands[case]
+    key, _, value = MAP_VALUES[case]
+    line = one_line(o, src)
+    field = "resolution" if key == "resolution" else f"origin {'x' if 'x' in case else 'y'}"
+    assert f": {field} = {value:.6g} m makes no sense" in line, line
+
+
+@pytest.mark.parametrize(
+    ("key", "text"),
+    [("resolution", "1e-6"), ("resolution", "1.2e5"), ("origin", "[1e9, -1e9, 0]")],
+)
+def test_map_yaml_values_at_the_limits_are_read(tmp_path: Path, key: str, text: str) -> None:
+    from scan2terrain.readers.mapserver import read_map_metadata
+
+    meta = read_map_metadata(map_yaml(tmp_path, "m", **{key: text}))
+    if key == "resolution":
+        assert meta.resolution == float(text)
+    else:
+        assert (meta.origin.x, meta.origin.y) == (1e9, -1e9)

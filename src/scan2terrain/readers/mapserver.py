@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
+from scan2terrain.readers._limits import MAX_COORDINATE_M, MAX_SPACING_M, MIN_SPACING_M, within
 from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, Channels, open_pixels
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Pose2D
 
@@ -76,11 +77,18 @@ def read_map_yaml(
 
 def extent_problem(shape: tuple[int, ...], resolution: float, origin: Pose2D) -> str | None:
     """Why a map of ``shape`` cells placed by ``resolution`` and ``origin`` cannot be built on
-    (a non-finite or non-positive number, or a corner too far from 0: see
+    (a non-finite or non-positive number, cells outside
+    :data:`~scan2terrain.readers._limits.MIN_SPACING_M` ..
+    :data:`~scan2terrain.readers._limits.MAX_SPACING_M`, or a corner too far from 0: see
     :data:`MAX_REACH_CELLS` and :data:`MAX_REACH_M`), or None. Also used for OccupancyGrid
     messages."""
     if not (math.isfinite(resolution) and resolution > 0):
         return f"resolution {resolution} is not a positive number of metres"
+    if not MIN_SPACING_M <= resolution <= MAX_SPACING_M:
+        return (
+            f"resolution = {resolution:.6g} m makes no sense: its size must be within "
+            f"{MIN_SPACING_M:g}..{MAX_SPACING_M:g} m"
+        )
     if not all(math.isfinite(v) for v in (origin.x, origin.y, origin.yaw)):
         return f"origin ({origin.x}, {origin.y}, {origin.yaw}) is not finite"
     reach = max(abs(origin.x), abs(origin.y)) + math.hypot(*shape[:2]) * resolution
@@ -136,6 +144,8 @@ def read_map_metadata(path: Path) -> MapMetadata:
     resolution = _number(doc, "resolution", path)
     if not resolution > 0:
         raise InputError(path, f"'resolution' must be > 0 metres per pixel, got {resolution}")
+    # A pixel of a micrometre to a degree of arc (1e-300 m failed deep in the outlines).
+    within(path, "resolution", resolution, lo=MIN_SPACING_M, hi=MAX_SPACING_M, unit="m")
 
     origin_field = _required(doc, "origin", path)
     if not isinstance(origin_field, list):
@@ -155,6 +165,8 @@ def read_map_metadata(path: Path) -> MapMetadata:
         raise InputError(path, "'origin' must hold finite numbers") from None
     if not all(math.isfinite(v) for v in (ox, oy, yaw)):
         raise InputError(path, "'origin' must hold finite numbers")
+    within(path, "origin x", ox, lo=0.0, hi=MAX_COORDINATE_M, unit="m")
+    within(path, "origin y", oy, lo=0.0, hi=MAX_COORDINATE_M, unit="m")
 
     negate_field = doc.get("negate", 0)
     if isinstance(negate_field, bool) or negate_field in (0, 1):
