@@ -111,7 +111,7 @@ RUNNER = textwrap.dedent(
         count = cnt.reshape(h, w)[box].astype(np.int32)
     else:
         from scan2terrain.commands.scans import read_clouds
-        from scan2terrain.steps import new_tree
+        from scan2terrain.commands.voxels import new_tree
         from scan2terrain.config import load_config
         from scan2terrain.grids.projection import column_stats
         cfg = load_config(None, {"octree.resolution": res})

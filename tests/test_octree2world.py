@@ -279,7 +279,7 @@ def test_octree_file_is_made_beside_the_world_with_the_same_bytes(tmp_path: Path
 def test_a_failing_octree_file_fails_the_world_and_writes_nothing(tmp_path: Path) -> None:
     """An error on the .bt thread reaches the caller when the folder is written (a bug of
     ours: the keys come from the octree, distinct), and no half-written folder is left."""
-    from scan2terrain.steps import octree_file
+    from scan2terrain.commands.voxels import octree_file
 
     keys, occupied = _wall_voxels()
     twice = np.concatenate([keys, keys[:1]])

@@ -1,27 +1,26 @@
-"""Named steps the commands share: filtering and previews, canvas and classification, the
-terrain layout (one heightmap or tiles), the spawn search, and the checks every command runs
-before any work (option combinations, grid sizes, output paths)."""
+"""Named grid steps the commands share: filtering, canvas and classification, the terrain layout
+(one heightmap or tiles), hole filling, and the points' column statistics and heights.
+
+The checks every command runs before any work are in ``checks.py``; what the world builders use
+(previews, the spawn search, texts) is in ``world/``; the octree's file thread in
+``commands/voxels.py``."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.config import Config, octree_resolution, two_digits_up
-from scan2terrain.errors import ConfigError, InputError
-from scan2terrain.exporters._numbers import decimal_text
-from scan2terrain.exporters.heightmap import CLASSIC, Heightmap, make_heightmap
-from scan2terrain.exporters.output import OutputDir
-from scan2terrain.exporters.preview import preview_png
-from scan2terrain.exporters.tiles import TiledHeightmap, make_tiled_heightmap
+from scan2terrain.checks import refuse_tiles_grid
+from scan2terrain.config import Config, two_digits_up
+from scan2terrain.errors import InputError
+from scan2terrain.exporters.heightmap import make_heightmap
+from scan2terrain.exporters.tiles import Terrain, make_tiled_heightmap
 from scan2terrain.filters.registry import run_filter
 from scan2terrain.filters.speckle import remove_speckles
 from scan2terrain.grids import (
@@ -32,54 +31,22 @@ from scan2terrain.grids import (
     upsample,
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
-from scan2terrain.grids.spawn import Around, find_spawn
 from scan2terrain.types import (
     HeightGrid,
     OccupancyGrid,
     Pose2D,
-    Spawn,
-    Start,
 )
+from scan2terrain.world.preview import filtering
 
 if TYPE_CHECKING:
     from scan2terrain.grids.projection import ColumnStats
     from scan2terrain.grids.tiles import Lattice, TileSet
-    from scan2terrain.octree.tree import VoxelOctree
     from scan2terrain.types import ScanCounts
 
 #: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 ScanProgress = Callable[["ScanCounts", int], None]
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
-
-#: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
-Terrain = Heightmap | TiledHeightmap
-
-
-@dataclass(frozen=True)
-class Preview:
-    """preview.png and what it shows."""
-
-    png: bytes
-    label: str
-
-
-def filtering(cfg: Config, *, occupancy: bool) -> bool:
-    """Whether the configured filter changes anything: a filter kind, or for occupancy grids
-    also speckle removal (heights and greys have no speckles)."""
-    f = cfg.filter
-    return f.enabled and (f.kind != "none" or (occupancy and f.speckle_min_cells > 1))
-
-
-def make_preview(
-    before: NDArray[np.generic], after: NDArray[np.generic], cfg: Config, *, occupancy: bool
-) -> Preview:
-    """Original | filtered | difference when a filter ran; else the input alone (labelled so)."""
-    if filtering(cfg, occupancy=occupancy):
-        return Preview(
-            preview_png(before, after, occupancy=occupancy), "original | filtered | difference"
-        )
-    return Preview(preview_png(before, None, occupancy=occupancy), "the input; filtering off")
 
 
 # --- steps -----------------------------------------------------------------------------------
@@ -246,17 +213,6 @@ class PointColumns:
         self.tiles.add_points(points)
 
 
-def refuse_tiles_grid(tiles: TileSet, cfg: Config, source: Path) -> None:
-    """Refuse, before the dense grid is allocated, the grid of tiles that hold no point or
-    that :func:`refuse_large_grid` refuses."""
-    from scan2terrain.errors import InputError
-
-    if tiles.points == 0:
-        raise InputError(source, "no point in the z band: nothing to make a grid of")
-    rows, cols = tiles.grid_shape()
-    refuse_large_grid(source, "points", rows, cols, resolution=tiles.lattice.resolution, cfg=cfg)
-
-
 def point_heights(
     tiles: TileSet, cfg: Config, source: Path, *, occupied: ColumnStats | None = None
 ) -> tuple[HeightGrid, list[str]]:
@@ -265,7 +221,6 @@ def point_heights(
     ``occupied`` columns after ray casting, see :meth:`TileSet.heights`), holes filled as
     ``octree.fill`` says; and a note when its cells are coarser than the relief's detail
     (:func:`relief_note`). The tiles are emptied once the grid is made."""
-    from scan2terrain.errors import InputError
 
     refuse_tiles_grid(tiles, cfg, source)
     heights = tiles.heights(cfg.octree.height_stat, occupied)
@@ -320,70 +275,6 @@ def relief_note(heights: HeightGrid, spreads: NDArray[np.float32], points: int) 
     )
 
 
-def filter_text(cfg: Config) -> str:
-    f = cfg.filter
-    if not filtering(cfg, occupancy=True):
-        return "no filter"
-    text = f"filter {f.kind}"
-    if f.speckle_min_cells > 1:
-        text += f", specks under {f.speckle_min_cells} cells removed"
-    return text
-
-
-def no_voxels(cfg: Config, what: str) -> None:
-    """Refuse ``world.geometry voxels``, before any work, for commands that hold no voxels."""
-    if cfg.world.geometry == "voxels":
-        raise ConfigError(
-            f"world.geometry voxels meshes an octree's voxels (octree2world, bag2world,"
-            f" cloud2world); {what} has no third dimension: use mesh, boxes, polylines or"
-            " heightmap"
-        )
-
-
-def heightmap_only(cfg: Config, what: str) -> Config:
-    """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
-    refuses wall geometries and what no heightmap can be (:func:`heightmap_options`)."""
-    no_voxels(cfg, what)
-    cfg = cfg.for_grid("heights")
-    heightmap_options(cfg)
-    if cfg.world.geometry != "heightmap":
-        raise ConfigError(
-            f"world.geometry {cfg.world.geometry} needs an occupancy grid (map2world, or"
-            f" octree/bag/cloud2world with octree.grid occupancy); {what} makes heightmaps only"
-        )
-    return cfg
-
-
-#: Peak bytes per grid cell of the octree and streamed paths, from the grid to the world files,
-#: measured over the process's base: 69-90 on the autzen LAZ at 0.2 m (16.6 M cells, sparse),
-#: 200 on four LAS tiles at 0.098 m (16.7 M cells, every one occupied: the walls' mesh).
-GRID_BYTES_PER_CELL = 200
-
-
-def refuse_large_grid(
-    source: Path, what: str, rows: int, cols: int, *, resolution: float, cfg: Config
-) -> None:
-    """Refuse a grid of ``rows`` x ``cols`` cells over ``max_pixels``, or estimated to need more
-    than ``max_memory`` MiB, before it is allocated (the octree's and the streamed path's, from
-    the ``what`` it spans): one line naming the settings that fix it, instead of a MemoryError
-    or the machine swapping."""
-    cells = rows * cols
-    if cells > cfg.max_pixels:
-        raise ConfigError(
-            f"{source}: the {what} span {cols} x {rows} cells of {resolution:g} m, over"
-            f" max_pixels {cfg.max_pixels}: choose a coarser --resolution (files in different"
-            " coordinate systems also spread this far)"
-        )
-    need = cells * GRID_BYTES_PER_CELL / 2**20
-    if need > cfg.max_memory:
-        fits = two_digits_up(resolution * math.sqrt(need / cfg.max_memory))
-        raise ConfigError(
-            f"{source}: the {what} span {cols} x {rows} cells of {resolution:g} m, about"
-            f" {need / 1024:.1f} GiB to build, over max_memory {cfg.max_memory} MiB: choose"
-            f" --resolution {fits:g} or coarser, or raise --max-memory"
-        )
-
-
 #: An occupancy grid from points this full of occupied cells is most likely ground, not walls.
 SOLID_SHARE = 0.9
 #: ... once it has this many cells. Fewer cannot be 90% full without being full (one cell is
@@ -404,135 +295,3 @@ def solid_hint(grid: OccupancyGrid) -> str | None:
         " obstacle, so the walls are one solid block. --grid height makes terrain of it;"
         " --z-min/--z-max keep the ground out of an occupancy grid"
     )
-
-
-def grid_options(cfg: Config) -> None:
-    """Before any work, for the commands whose grid comes from voxels or points (octree2world,
-    bag2world, cloud2world): refuse what the world they will write cannot be."""
-    grid = "occupancy" if cfg.octree.grid == "occupancy" else "heights"
-    if cfg.for_grid(grid).world.geometry == "heightmap":
-        heightmap_options(cfg)
-
-
-def minus(name: str, v: float) -> str:
-    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0;
-    ``v`` rounded to the nanometre (28.95, not 28.950000000000003)."""
-    text = decimal_text(abs(v), 9)
-    if text == "0":
-        return name
-    return f"{name} - {text}" if v > 0 else f"{name} + {text}"
-
-
-def heightmap_options(cfg: Config) -> None:
-    """Refuse, before any work, heightmap options a chosen simulator cannot load: every command
-    that writes a heightmap checks the same things, with the same message."""
-    if cfg.terrain.bit_depth == 16 and cfg.world.simulator in (CLASSIC, "both"):
-        raise ConfigError(
-            "Gazebo Classic reads only the first byte of each heightmap pixel: use "
-            "--bit-depth 8 with --simulator classic or both (16-bit is gz-sim only)"
-        )
-
-
-def refuse_existing(out: Path, overwrite: bool, inputs: tuple[Path | str, ...] = ()) -> None:
-    # Checked before any work so a refused run costs nothing; OutputDir checks again. The
-    # target is resolved; one that is or contains an input (``inputs``), ``/``, or the current
-    # or home folder or a parent of them is refused even under --overwrite.
-    OutputDir.check_target(out, overwrite, inputs)
-
-
-def spawn_for(
-    heights: NDArray[np.floating],
-    resolution: float,
-    origin: Pose2D,
-    start: Start | None,
-    *,
-    ground: NDArray[np.bool_] | None = None,
-    free: NDArray[np.bool_] | None = None,
-    samples: bool = False,
-    around: Around | None = None,
-) -> Spawn:
-    """The spawn spot of a world's ground (map frame; see grids/spawn.py): searched from the
-    robot's recorded start when there is one, else from the map origin (or the centre).
-    ``samples``: a heightmap's (Gazebo interpolates between them); ``around``: the ground the
-    world has beyond the grid (a walls world's slab, a heightmap's padding)."""
-    if start is None:
-        return find_spawn(
-            heights, resolution, origin, ground=ground, free=free, samples=samples, around=around
-        )
-    p = start.pose
-    return find_spawn(
-        heights, resolution, origin, preferred=(p.x, p.y), yaw=p.yaw, ground=ground,
-        free=free, why=start.why, samples=samples, around=around,
-    )  # fmt: skip
-
-
-def terrain_around(hm: Terrain, upsample: int, height: float) -> Around | None:
-    """The padding of one heightmap around its grid, in whole grid cells (``upsample``
-    pixels a cell), at ``height`` metres: ground Gazebo builds beyond the map. Tiles: None
-    (their padding is on the far sides of the last tiles only)."""
-    if not isinstance(hm, Heightmap):
-        return None
-    rows, cols = hm.grid_shape
-    left, bottom = hm.pad
-    right, top = hm.side - cols - left, hm.side - rows - bottom
-    return Around(
-        (left // upsample, bottom // upsample, right // upsample, top // upsample), height
-    )
-
-
-def new_tree(cfg: Config) -> VoxelOctree:
-    """An empty voxel octree with the config's resolution and OctoMap sensor model, refusing
-    to grow past ``max_memory``."""
-    from scan2terrain.octree.tree import SensorModel, VoxelOctree
-
-    o = cfg.octree
-    return VoxelOctree(
-        octree_resolution(cfg),
-        SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy),
-        max_bytes=cfg.max_memory << 20,
-    )
-
-
-@contextmanager
-def octree_file(
-    resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]
-) -> Iterator[dict[str, Future[bytes]]]:
-    """``{"octree.bt": the .bt bytes}``, made on a second thread while the caller builds the
-    world from the same (unchanged) voxels: the .bt kernels release the GIL, so on two cores
-    the file costs no time; the bytes are the same. The writer waits for them."""
-    from scan2terrain.octree.bt import bt_bytes
-
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree.bt") as pool:
-        yield {
-            "octree.bt": pool.submit(bt_bytes, resolution=resolution, keys=keys, occupied=occupied)
-        }
-
-
-def grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint8]:
-    """Heights as 8-bit grey between ``lo`` (black) and ``hi`` (white), for previews."""
-    span = hi - lo if hi > lo else 1.0
-    grey: NDArray[np.uint8] = np.clip(np.rint((heights - lo) / span * 255), 0, 255).astype(np.uint8)
-    return grey
-
-
-def refuse_unused(source: Path, counts: ScanCounts, done: str) -> None:
-    """A recording none of whose scan messages could be ``done`` (used, replayed): one line
-    saying how many lacked a pose or a valid point, and why the first had no pose."""
-    if counts.inserted:
-        return
-    why = f"; the first: {counts.first_unposed}" if counts.first_unposed else ""
-    raise InputError(
-        source,
-        f"none of {counts.messages} scan message(s) could be {done} "
-        f"({counts.unposed} without a pose, {counts.empty} without a valid point){why}",
-    )
-
-
-def skipped_notes(counts: ScanCounts) -> list[str]:
-    """The report's lines on the scans left out: without a pose, without a valid point."""
-    notes = []
-    if counts.unposed:
-        notes.append(f"scans without a pose, skipped: {counts.unposed} ({counts.first_unposed})")
-    if counts.empty:
-        notes.append(f"scans without a valid point, skipped: {counts.empty}")
-    return notes

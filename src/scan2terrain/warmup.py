@@ -239,8 +239,8 @@ def _warm_correction() -> None:
 
 
 def _tree() -> Any:
+    from scan2terrain.commands.voxels import new_tree
     from scan2terrain.config import load_config
-    from scan2terrain.steps import new_tree
 
     return new_tree(load_config(overrides={"octree.resolution": 0.1}))
 

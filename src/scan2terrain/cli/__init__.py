@@ -140,7 +140,7 @@ def _drop_stdout() -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from scan2terrain.steps import refuse_existing
+    from scan2terrain.checks import refuse_existing
 
     overrides: dict[str, Any] = {
         k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS

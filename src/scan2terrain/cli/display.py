@@ -114,7 +114,7 @@ def spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
 
 def report(result: Result) -> str:
     """How to open what was written, for a human."""
-    from scan2terrain.steps import minus
+    from scan2terrain.world.names import minus
 
     out = result.out
     walls = result.geometry != "heightmap"

@@ -11,29 +11,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scan2terrain.checks import heightmap_only, refuse_existing
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import GZ, Heightmap
-from scan2terrain.exporters.tiles import TiledHeightmap
+from scan2terrain.exporters.tiles import Terrain, TiledHeightmap
 from scan2terrain.filters.median import median_filter
-from scan2terrain.steps import (
-    Terrain,
-    filtering,
-    grey8,
-    heightmap_only,
-    heightmap_or_tiles,
-    make_preview,
-    minus,
-    refuse_existing,
-    spawn_for,
-    terrain_around,
-)
+from scan2terrain.steps import heightmap_or_tiles
 from scan2terrain.types import (
     HeightGrid,
 )
 from scan2terrain.world.folder import Result, write_world_folder
-from scan2terrain.world.names import terrain_name
+from scan2terrain.world.names import minus, terrain_name
+from scan2terrain.world.preview import filtering, grey8, make_preview
+from scan2terrain.world.spawn import spawn_for, terrain_around
 from scan2terrain.world.terrain import terrain_folder
 
 if TYPE_CHECKING:

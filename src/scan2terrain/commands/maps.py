@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scan2terrain.checks import heightmap_only, heightmap_options, no_voxels, refuse_existing
 from scan2terrain.config import Config
 from scan2terrain.filters.median import median_filter
 from scan2terrain.filters.unknown import occupancy_to_heights, unknown_level
@@ -31,16 +32,7 @@ from scan2terrain.steps import (
     classify,
     filter_grey,
     filter_occupancy,
-    filtering,
-    grey8,
-    heightmap_only,
-    heightmap_options,
-    make_preview,
-    no_voxels,
     place_on_canvas,
-    refuse_existing,
-    spawn_for,
-    terrain_around,
     terrain_layout,
 )
 from scan2terrain.types import (
@@ -52,6 +44,8 @@ from scan2terrain.types import (
     Start,
 )
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
+from scan2terrain.world.preview import filtering, grey8, make_preview
+from scan2terrain.world.spawn import spawn_for, terrain_around
 from scan2terrain.world.terrain import terrain_folder
 from scan2terrain.world.walls import walls_folder
 

@@ -229,10 +229,10 @@ def fidelity_command(
     """Any Gazebo world scored against a recording (a bag, or an OctoMap scan file): the
     world's collision geometry, as the simulator builds it, in the recording's fixed frame;
     writes ``fidelity.yaml``, ``fidelity.png`` and ``trajectory.tum`` to ``out``."""
+    from scan2terrain.checks import refuse_existing
     from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
     from scan2terrain.readers.world import read_world
     from scan2terrain.replay.cast import fidelity
-    from scan2terrain.steps import refuse_existing
     from scan2terrain.world.folder import WorldFolder, write_world_folder
 
     refuse_existing(out, overwrite, (world, *recording))
@@ -276,9 +276,9 @@ class Recorded:
 def record(recording: Sequence[Path], cfg: Config) -> Recorded:
     """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder, posed
     as bag2world poses them: with ``scans.correct`` applied the same way."""
+    from scan2terrain.checks import refuse_unused, skipped_notes
     from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
     from scan2terrain.readers.points import within_reach
-    from scan2terrain.steps import refuse_unused, skipped_notes
 
     recorder = BeamRecorder()
     first = Path(recording[0])

@@ -21,23 +21,16 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.checks import grid_options, refuse_existing, refuse_unused, skipped_notes
 from scan2terrain.commands.correct import correct_plan, decide
 from scan2terrain.commands.maps import height_folder, occupancy_folder
 from scan2terrain.commands.replay import scan_replay
-from scan2terrain.commands.voxels import Voxels, cast_hits, octree_folder, point_columns
+from scan2terrain.commands.voxels import Voxels, cast_hits, new_tree, octree_folder, point_columns
 from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError, about
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.steps import (
-    PointColumns,
-    ScanProgress,
-    grid_options,
-    new_tree,
-    refuse_existing,
-    refuse_unused,
-    skipped_notes,
-)
+from scan2terrain.steps import PointColumns, ScanProgress
 from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 

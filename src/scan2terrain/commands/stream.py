@@ -159,10 +159,10 @@ def plan_clouds(
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
+    from scan2terrain.checks import refuse_large_grid
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import LAS_SUFFIXES, is_url, las_info, url_path, url_suffix
     from scan2terrain.readers.points import local_origin
-    from scan2terrain.steps import refuse_large_grid
 
     st = cfg.stream
     per_task = st.chunk_points * CHUNKS_PER_TASK
@@ -493,8 +493,9 @@ def streamed_folder(streamed: Streamed, source: Path, cfg: Config) -> WorldFolde
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
+    from scan2terrain.checks import refuse_tiles_grid
     from scan2terrain.commands.maps import height_folder, occupancy_folder
-    from scan2terrain.steps import point_heights, refuse_tiles_grid, solid_hint
+    from scan2terrain.steps import point_heights, solid_hint
 
     tiles = streamed.tiles
     read = [*streamed.notes, f"points counted: {tiles.points:,}"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,19 +15,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.config import Config
+from scan2terrain.checks import grid_options, refuse_existing, refuse_large_grid
+from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import InputError, about
-from scan2terrain.steps import (
-    PointColumns,
-    fill_holes,
-    grid_options,
-    new_tree,
-    octree_file,
-    point_heights,
-    refuse_existing,
-    refuse_large_grid,
-    solid_hint,
-)
+from scan2terrain.steps import PointColumns, fill_holes, point_heights, solid_hint
 from scan2terrain.types import (
     Start,
 )
@@ -248,3 +240,31 @@ def build_octree(
         if progress is not None:
             progress(counts, 0)
     return tree
+
+
+def new_tree(cfg: Config) -> VoxelOctree:
+    """An empty voxel octree with the config's resolution and OctoMap sensor model, refusing
+    to grow past ``max_memory``."""
+    from scan2terrain.octree.tree import SensorModel, VoxelOctree
+
+    o = cfg.octree
+    return VoxelOctree(
+        octree_resolution(cfg),
+        SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy),
+        max_bytes=cfg.max_memory << 20,
+    )
+
+
+@contextmanager
+def octree_file(
+    resolution: float, keys: NDArray[np.uint16], occupied: NDArray[np.bool_]
+) -> Iterator[dict[str, Future[bytes]]]:
+    """``{"octree.bt": the .bt bytes}``, made on a second thread while the caller builds the
+    world from the same (unchanged) voxels: the .bt kernels release the GIL, so on two cores
+    the file costs no time; the bytes are the same. The writer waits for them."""
+    from scan2terrain.octree.bt import bt_bytes
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree.bt") as pool:
+        yield {
+            "octree.bt": pool.submit(bt_bytes, resolution=resolution, keys=keys, occupied=occupied)
+        }

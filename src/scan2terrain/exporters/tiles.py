@@ -213,3 +213,7 @@ def make_tiled_heightmap(
     return TiledHeightmap(
         heights, grid.resolution, grid.origin, max_side, bit_depth, pad_height, z_min, z_range, span
     )
+
+
+#: The ground of a heightmap world: one heightmap, or tiles when the grid is too big for one.
+Terrain = Heightmap | TiledHeightmap

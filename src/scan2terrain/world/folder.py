@@ -22,13 +22,13 @@ from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.exporters.output import MARKER, OutputDir, atomic_output
-from scan2terrain.steps import Preview
 from scan2terrain.types import (
     OccupancyGrid,
     Pose2D,
     Spawn,
 )
 from scan2terrain.world.georef import georeference
+from scan2terrain.world.preview import Preview
 
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 

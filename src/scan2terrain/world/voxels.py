@@ -41,7 +41,6 @@ from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.grids.spawn import Around
 from scan2terrain.octree.keys import KEY_OFFSET
-from scan2terrain.steps import Preview, spawn_for
 from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Start
 from scan2terrain.world.folder import (
     Result,
@@ -50,6 +49,8 @@ from scan2terrain.world.folder import (
     sim_world,
 )
 from scan2terrain.world.names import unique_name
+from scan2terrain.world.preview import Preview
+from scan2terrain.world.spawn import spawn_for
 
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours

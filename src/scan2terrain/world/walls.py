@@ -21,7 +21,6 @@ from scan2terrain.grids import (
     axis_align,
 )
 from scan2terrain.grids.spawn import Around
-from scan2terrain.steps import Preview, filter_text, spawn_for
 from scan2terrain.types import (
     FREE,
     OCCUPIED,
@@ -37,6 +36,8 @@ from scan2terrain.world.folder import (
     sim_world,
 )
 from scan2terrain.world.names import unique_name
+from scan2terrain.world.preview import Preview, filter_text
+from scan2terrain.world.spawn import spawn_for
 
 
 @dataclass(frozen=True)
