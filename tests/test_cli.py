@@ -481,3 +481,23 @@ def test_python_dash_m_runs_the_command() -> None:
             [sys.executable, "-m", module, "map2wrld"], capture_output=True, text=True, check=False
         )
         assert r.returncode == 2 and "did you mean 'map2world'?" in r.stderr, r.stderr
+
+
+def test_version_has_one_source_the_package_metadata() -> None:
+    """``--version`` and ``scan2terrain.__version__`` say pyproject.toml's version."""
+    import tomllib
+
+    import scan2terrain
+
+    root = Path(__file__).resolve().parent.parent
+    declared = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    done = subprocess.run(
+        [sys.executable, "-m", "scan2terrain", "--version"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0 and done.stdout == f"scan2terrain {declared}\n"
+    assert scan2terrain.__version__ == declared
+    with pytest.raises(AttributeError):
+        _ = scan2terrain.no_such_name  # type: ignore[attr-defined]

@@ -161,6 +161,20 @@ def _suggest_choice(message: str) -> str:
     return f"{message} (did you mean '{near[0]}'?)" if near else message
 
 
+class _Version(argparse.Action):
+    """--version: the installed package's version (its metadata: one source, pyproject.toml),
+    read only when asked."""
+
+    def __init__(self, option_strings: list[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        import scan2terrain
+
+        print(f"{parser.prog} {scan2terrain.__version__}")  # on stdout, as argparse's own
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="scan2terrain",
@@ -168,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--version", action="version", version="%(prog)s 0.1.0")
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     m = sub.add_parser(
