@@ -6,4 +6,5 @@ bash scripts/setup.sh test
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/ruff format --check src tests benchmarks
 .venv/bin/mypy
-exec .venv/bin/pytest -q "$@"
+# The coverage of src/ by the whole suite, printed at the end (modules fully covered left out).
+exec .venv/bin/pytest -q --cov=scan2terrain --cov-report=term:skip-covered "$@"
