@@ -39,6 +39,7 @@ KERNEL_MODULES = (
     "scan2terrain.octree._group",
     "scan2terrain.grids._tile_kernels",
     "scan2terrain.readers._las_kernels",
+    "scan2terrain.readers._ply_kernels",
     "scan2terrain.geometry._outline_kernels",
     "scan2terrain.slam._bnb_kernels",
     "scan2terrain.replay._march_kernels",
@@ -220,6 +221,7 @@ def _warm_grids() -> None:
     walls[2:10, 3] = walls[5, 2:11] = True
     simplify(trace(walls, 0.05, Pose2D(0.0, 0.0)), 0.05, resolution=0.05, origin=Pose2D(0.0, 0.0))
     _warm_las()
+    _warm_ply()
     _warm_correction()
 
 
@@ -292,6 +294,20 @@ def _warm_las() -> None:
         las.write(path)
         for _ in iter_las(path):
             pass
+
+
+def _warm_ply() -> None:
+    """The walks over PLY rows of varying length, with the argument types ply.py passes."""
+    import numpy as np
+
+    from scan2terrain.readers import _ply_kernels
+
+    data = np.frombuffer(b"1 2 3 1 4\n", np.uint8)
+    counts, signed = np.array([0, 0, 0, 1], np.int64), np.array([False, False, False, True])
+    _ply_kernels.walk_ascii(data, 0, 1, counts, signed)
+    sizes = np.array([1, 1, 1, 1], np.int64)
+    _ply_kernels.walk_binary(data, 0, 1, sizes, counts, signed, False)
+    _ply_kernels.skip_space(data, 0)
 
 
 USAGE = f"usage: python -m scan2terrain.warmup [--parts {','.join(PARTS)}]"

@@ -278,9 +278,145 @@ def map_inputs(tmp: Path) -> Inputs:
     }
 
 
+# --- PLY ----------------------------------------------------------------------------------------
+
+
+def _ply_points(n: int = 150):  # type: ignore[no-untyped-def]
+    import numpy as np
+
+    return np.random.default_rng(3).uniform(-5, 5, (n, 3)).astype(np.float32)
+
+
+def ply_list(fmt: str, *, count: str = "uchar", counts: list[int] | None = None) -> bytes:
+    """150 vertices x y z and a list ``extra`` of ``counts[k]`` (else k % 3) floats 1.5."""
+    pts = _ply_points()
+    counts = [k % 3 for k in range(len(pts))] if counts is None else counts
+    head = (
+        f"ply\nformat {fmt} 1.0\nelement vertex {len(pts)}\nproperty float x\n"
+        f"property float y\nproperty float z\nproperty list {count} float extra\nend_header\n"
+    )
+    if fmt == "ascii":
+        rows = "".join(
+            f"{x:.4f} {y:.4f} {z:.4f} {c}{' 1.5' * max(c, 0)}\n"
+            for c, (x, y, z) in zip(counts, pts, strict=True)
+        )
+        return (head + rows).encode()
+    code = {"uchar": "B", "char": "b", "int": "i"}[count]
+    body = b"".join(
+        struct.pack(f"<3f{code}", *p, c) + struct.pack(f"<{max(c, 0)}f", *[1.5] * max(c, 0))
+        for c, p in zip(counts, pts, strict=True)
+    )
+    return head.encode() + body
+
+
+def ply_face_first(fmt: str, face_count: int) -> bytes:
+    """A face element (a list of ``face_count`` ints that should be 3) before the vertices."""
+    pts = _ply_points()
+    head = (
+        f"ply\nformat {fmt} 1.0\nelement face 1\nproperty list uchar int vertex_indices\n"
+        f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+        "end_header\n"
+    )
+    if fmt == "ascii":
+        rows = "".join(f"{x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in pts)
+        return (head + f"{face_count} 0 1 2\n" + rows).encode()
+    return head.encode() + struct.pack("<B3i", face_count, 0, 1, 2) + pts.tobytes()
+
+
+def ply_fixed(*, header_extra: str = "", x0: float | None = None) -> bytes:
+    """150 vertices x y z as binary floats (doubles), the first x replaced by ``x0``."""
+    pts = _ply_points().astype("<f8")
+    if x0 is not None:
+        pts[3, 0] = x0
+    head = (
+        "ply\nformat binary_little_endian 1.0\nelement vertex 150\nproperty double x\n"
+        f"property double y\nproperty double z\n{header_extra}end_header\n"
+    )
+    return head.encode() + pts.tobytes()
+
+
+def _with_byte(data: bytes, at: int, value: int) -> bytes:
+    out = bytearray(data)
+    out[at] = value
+    return bytes(out)
+
+
+#: name -> (the file's bytes, words its refusal must hold).
+PLY_CASES: dict[str, tuple[Callable[[], bytes], tuple[str, ...]]] = {
+    "ply-dup-x": (
+        lambda: ply_fixed().replace(b"property double x\n", b"property double x\n" * 2),
+        ("element vertex declares property 'x' twice",),
+    ),
+    "ply-dup-x-list": (
+        lambda: ply_list("ascii").replace(b"property float x\n", b"property float x\n" * 2),
+        ("element vertex declares property 'x' twice",),
+    ),
+    "ply-dup-element": (
+        lambda: ply_fixed(header_extra="element vertex 0\nproperty float x\n"),
+        ("declares element 'vertex' twice",),
+    ),
+    "ply-header-control": (
+        lambda: ply_fixed().replace(b"property double z\n", b"property double z\x1c\n"),
+        ("PLY header", "control character 0x1c"),
+    ),
+    "ply-list-bin-count-last": (
+        lambda: _with_byte(ply_list("binary_little_endian"), -9, 250),  # the last row's count
+        ("row 149 of element vertex", "list 'extra' holds 250 values, past the end"),
+    ),
+    "ply-list-bin-negative": (
+        lambda: ply_list("binary_little_endian", count="char", counts=[1] * 7 + [-5] + [1] * 142),
+        ("row 7 of element vertex", "list 'extra' has a count of -5"),
+    ),
+    "ply-list-bin-count-small": (
+        lambda: ply_list("binary_little_endian", counts=[2] * 150)[:-4],
+        ("element vertex",),
+    ),
+    "ply-list-bin-trunc": (
+        lambda: ply_list("binary_little_endian")[:-3],
+        ("row 149 of element vertex", "list 'extra' holds 2 values, past the end"),
+    ),
+    "ply-list-ascii-trunc": (
+        lambda: ply_list("ascii")[:-5],
+        ("row 149 of element vertex", "list 'extra' holds 2 values, past the end"),
+    ),
+    "ply-list-ascii-count-big": (
+        lambda: ply_list("ascii").replace(b" 2 1.5 1.5\n", b" 9 1.5 1.5\n", 1),
+        ("element vertex",),
+    ),
+    "ply-list-ascii-count-word": (
+        lambda: ply_list("ascii").replace(b" 2 1.5 1.5\n", b" 2.5 1.5 1.5\n", 1),
+        ("row 2 of element vertex", "list 'extra' count '2.5' is not an integer"),
+    ),
+    "ply-list-ascii-count-range": (
+        lambda: ply_list("ascii").replace(b" 1 1.5\n", b" 300 1.5\n", 1),
+        ("row 1 of element vertex", "list 'extra' count 300 is beyond its type uchar"),
+    ),
+    "ply-face-first-bin": (
+        lambda: ply_face_first("binary_little_endian", 200),
+        ("element vertex",),
+    ),
+    "ply-face-first-ascii": (lambda: ply_face_first("ascii", 9), ("element vertex",)),
+    "ply-coordinate-huge": (
+        lambda: ply_fixed(x0=1e300),
+        ("vertex 3: x = 1e+300 m makes no sense",),
+    ),
+}
+
+
+def ply_inputs(tmp: Path) -> Inputs:
+    out: Inputs = {}
+    for name, (data, _) in PLY_CASES.items():
+        path = tmp / f"{name}.ply"
+        path.write_bytes(data())
+        out[name] = (path, ["convert", "{in}", "{out}.xyz"], {})
+        out[f"{name}-world"] = (path, ["cloud2world", "{in}", "-o", "{out}", "--resolution", "0.2",
+                                       *WORLD], {})  # fmt: skip
+    return out
+
+
 # --- the commands, run once -----------------------------------------------------------------------
 
-BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs, map_inputs]
+BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs, map_inputs, ply_inputs]
 
 
 @pytest.fixture(scope="module")
@@ -415,3 +551,44 @@ def test_map_yaml_values_at_the_limits_are_read(tmp_path: Path, key: str, text: 
         assert meta.resolution == float(text)
     else:
         assert (meta.origin.x, meta.origin.y) == (1e9, -1e9)
+
+
+# --- 4. PLY: one line for every damaged header and list -------------------------------------------
+
+
+@pytest.mark.parametrize("world", [False, True], ids=["convert", "cloud2world"])
+@pytest.mark.parametrize("case", list(PLY_CASES))
+def test_a_damaged_ply_is_refused_in_one_line(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str, world: bool
+) -> None:
+    """Seen: x declared twice ran over 30 s; wrong list counts, truncated lists and a face
+    element before the vertices said two lines (a warning, then the error) or wrote a world
+    from misread rows."""
+    src, o, _ = commands[f"{case}-world" if world else case]
+    line = one_line(o, src)
+    for words in PLY_CASES[case][1]:
+        assert words in line, line
+    assert o.seconds < 20, o.describe()
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        lambda: ply_list("ascii"),
+        lambda: ply_list("binary_little_endian"),
+        lambda: ply_list("binary_little_endian", count="int"),
+        lambda: ply_list("ascii", count="char"),
+        lambda: ply_face_first("ascii", 3),
+        lambda: ply_face_first("binary_little_endian", 3),
+        lambda: ply_list("binary_little_endian") + b"\n",
+    ],
+)
+def test_plys_with_lists_are_read(tmp_path: Path, data: Callable[[], bytes]) -> None:
+    import numpy as np
+
+    from scan2terrain.readers.cloudfile import read_cloud
+
+    path = tmp_path / "l.ply"
+    path.write_bytes(data())
+    got = read_cloud(path)
+    np.testing.assert_allclose(got.points, _ply_points(), atol=1e-4)

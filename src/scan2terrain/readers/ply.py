@@ -4,12 +4,19 @@ colours (``red``, ``green``, ``blue`` properties).
 The header is parsed and checked here and the vertex data decoded with numpy (a structured
 dtype over the bytes, ``numpy.loadtxt`` for ASCII), keeping float64 for double properties.
 Open3D (RPly) reads files with list properties before or inside the vertex element (rows of
-varying length), once the data has been checked to be long enough for the header's counts.
+varying length), once every row of every element has been walked here (compiled,
+:mod:`._ply_kernels`): each list count of its type and not negative, each list inside the data,
+the rows ending where the data does; RPly's own complaints (two lines, or rows misread from a
+wrong count) then concern only words that are not numbers. A header may not declare an element,
+or a property of one element, twice (``x`` twice ran for minutes), nor hold control characters.
+Coordinates must lie within :data:`~._limits.MAX_COORDINATE_M` of the origin. Every refusal is
+one :class:`~scan2terrain.errors.InputError` naming the file, the row and the field.
 """
 
 from __future__ import annotations
 
 import io
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers import _ply_kernels
 from scan2terrain.readers._cloud_common import (
     XYZ,
     Decoded,
@@ -30,6 +38,7 @@ from scan2terrain.readers._cloud_common import (
     rgb8,
     stack,
 )
+from scan2terrain.readers._limits import MAX_COORDINATE_M, within
 from scan2terrain.types import COLOUR_ATTRIBUTES
 
 _PLY_TYPES = {
@@ -61,6 +70,8 @@ class _Element:
     count: int
     props: list[tuple[str, str | None]]  # (name, numpy code), None for a list property
     lists: list[str] = field(default_factory=list)  # numpy code of each list's length
+    #: per property: (numpy code of a value, of a list's count or "", the count's PLY type)
+    layout: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def fixed(self) -> bool:
@@ -98,9 +109,11 @@ def read_ply(path: Path, *, colours: bool = False, attributes: bool = False) -> 
     unread = [f"{n} (a list)" for n in others if codes[n] is None]
     others = [n for n in others if codes[n] is not None]
     if not vertex.fixed or not all(e.fixed for e in before):
-        # Rows of varying length: Open3D (RPly) walks them.
+        # Rows of varying length: walked here, then read by Open3D (RPly).
         _check_ply_rows(path, fmt, raw, start, [*before, vertex])
+        _walk_rows(path, fmt, raw, start, elements)
         pts, values = open3d_points(path, vertex.count, colours=bool(rgb))
+        _check_coordinates(path, pts)
         rgb_o3d = None
         if values is not None:  # Open3D's value / 255 * 255: integers only to a rounding
             rgb_o3d = rgb8(values if floats else np.rint(values), fractions=floats)
@@ -161,6 +174,7 @@ def read_ply(path: Path, *, colours: bool = False, attributes: bool = False) -> 
         records = np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)
         table = stack(records)
         columns = {a: records[a].astype(records[a].dtype.newbyteorder("=")) for a in wanted[3:]}
+    _check_coordinates(path, table)
     colour: NDArray[np.uint8] | None = None
     attrs: dict[str, NDArray[Any]] = {}
     if rgb:
@@ -194,9 +208,14 @@ def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
         raise InputError(path, "PLY header has no end_header line")
     newline = raw.find(b"\n", end)
     start = len(raw) if newline < 0 else newline + 1
+    head = raw[:end]
+    control = np.flatnonzero(np.isin(np.frombuffer(head, np.uint8), _CONTROL))
+    if control.size:  # RPly and Python split words and lines differently at these
+        at = int(control[0])
+        raise InputError(path, f"PLY header: a control character 0x{head[at]:02x} at byte {at}")
     fmt = ""
     elements: list[_Element] = []
-    for line in decode_text(path, raw[:end]).splitlines()[1:]:
+    for line in decode_text(path, head).split("\n")[1:]:
         words = line.split()
         if not words or words[0] in ("comment", "obj_info"):
             continue
@@ -204,17 +223,31 @@ def _ply_header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
             if words[0] == "format":
                 fmt = words[1]
             elif words[0] == "element":
+                if any(e.name == words[1] for e in elements):
+                    raise InputError(path, f"PLY header declares element {words[1]!r} twice")
                 elements.append(_Element(words[1], int(words[2]), []))
-            elif words[0] == "property" and words[1] == "list":
-                length, _ = _PLY_TYPES[words[2]], _PLY_TYPES[words[3]]
-                if np.dtype(length).kind not in "iu":
-                    raise ValueError
-                elements[-1].props.append((words[4], None))
-                elements[-1].lists.append(length)
             elif words[0] == "property":
-                elements[-1].props.append((words[2], _PLY_TYPES[words[1]]))
+                element = elements[-1]
+                name = words[4] if words[1] == "list" else words[2]
+                if any(p == name for p, _ in element.props):
+                    raise InputError(
+                        path,
+                        f"PLY header: element {element.name} declares property {name!r} twice",
+                    )
+                if words[1] == "list":
+                    length, value = _PLY_TYPES[words[2]], _PLY_TYPES[words[3]]
+                    if np.dtype(length).kind not in "iu":
+                        raise ValueError
+                    element.props.append((name, None))
+                    element.lists.append(length)
+                    element.layout.append((value, length, words[2]))
+                else:
+                    element.props.append((name, _PLY_TYPES[words[1]]))
+                    element.layout.append((_PLY_TYPES[words[1]], "", ""))
             else:
                 raise ValueError
+        except InputError:
+            raise
         except (IndexError, ValueError, KeyError):
             raise InputError(path, f"PLY header: cannot read the line {line[:60]!r}") from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
@@ -237,9 +270,13 @@ def _row_size(element: _Element) -> int:
     return sum(np.dtype(code).itemsize for _, code in element.props if code is not None)
 
 
+#: Bytes a PLY header may not hold: control characters but tab, line feed and carriage return.
+_CONTROL = np.array([b for b in range(32) if b not in b"\t\n\r"] + [127], dtype=np.uint8)
+
+
 def _check_ply_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Element]) -> None:
     """Refuse PLY data too short for its elements' counts even with every list empty, before
-    Open3D (RPly) reads it: it keeps the rows it could not read as uninitialised points."""
+    a row is walked."""
     if fmt == "ascii":  # one number per property, at least (a list's length)
         need = sum(e.count * len(e.props) for e in elements)
         have, unit = _count_words(raw, start), "numbers"
@@ -260,3 +297,70 @@ def _count_words(data: bytes, start: int) -> int:
     space = np.isin(view, np.frombuffer(b" \t\n\r\v\f", dtype=np.uint8))
     starts = np.count_nonzero(space[:-1] & ~space[1:])
     return int(starts) + int(view.size > 0 and not space[0])
+
+
+def _walk_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Element]) -> None:
+    """Every row of every element inside the data, each list count of its type and >= 0, and
+    the rows ending where the data does (but for white space), before RPly reads them: it reads
+    rows past a wrong count as other rows, or keeps those it could not read uninitialised."""
+    data = np.frombuffer(raw, np.uint8)
+    pos = start
+    for element in elements:
+        codes = [np.dtype(value) for value, _, _ in element.layout]
+        sizes = np.array([c.itemsize for c in codes], np.int64)
+        count_sizes = np.array([np.dtype(c).itemsize if c else 0 for _, c, _ in element.layout],
+                               np.int64)  # fmt: skip
+        signed = np.array(
+            [bool(c) and np.dtype(c).kind == "i" for _, c, _ in element.layout], dtype=bool
+        )
+        if fmt == "ascii":
+            stop = _ply_kernels.walk_ascii(data, pos, element.count, count_sizes, signed)
+        else:
+            big = fmt == "binary_big_endian"
+            stop = _ply_kernels.walk_binary(
+                data, pos, element.count, sizes, count_sizes, signed, big
+            )
+        status, row, prop, end, count = (int(v) for v in stop)
+        if status != _ply_kernels.FITS:
+            raise InputError(path, _stop(element, raw, (status, row, prop, end, count)))
+        pos = end
+    rest = int(_ply_kernels.skip_space(data, pos))
+    if rest < len(raw):
+        raise InputError(
+            path,
+            f"the rows of its elements end at byte {pos}, {len(raw) - pos:,} bytes before the "
+            "file does: a list or element count is wrong",
+        )
+
+
+def _stop(element: _Element, raw: bytes, stop: tuple[int, int, int, int, int]) -> str:
+    """Why the walk of ``element`` over ``raw`` stopped (a walk's ``(status, row, prop, pos,
+    count)``), in words."""
+    status, row, prop, pos, count = stop
+    name = element.props[prop][0]
+    where = f"row {row} of element {element.name}"
+    if status == _ply_kernels.TRUNCATED:
+        return f"truncated: the data ends in {where}, at its property {name!r} (byte {pos})"
+    if status == _ply_kernels.NEGATIVE:
+        return f"{where}: its list {name!r} has a count of {count} (at byte {pos})"
+    if status == _ply_kernels.PAST_END:
+        return (
+            f"{where}: its list {name!r} holds {count:,} values, past the end of the data "
+            "(a wrong count, or a truncated file)"
+        )
+    kind = element.layout[prop][2]
+    if status == _ply_kernels.OUT_OF_RANGE:
+        return f"{where}: its list {name!r} count {count} is beyond its type {kind}"
+    word = re.split(rb"[ \t\n\r]", raw[pos : pos + 20])[0].decode("utf-8", "replace")
+    return f"{where}: its list {name!r} count {word!r} is not an integer"
+
+
+def _check_coordinates(path: Path, points: NDArray[Any]) -> None:
+    """Every finite coordinate within :data:`~._limits.MAX_COORDINATE_M` of the origin
+    (non-finite ones are dropped later, with a note)."""
+    with np.errstate(invalid="ignore"):
+        far = np.abs(points[:, :3]) > MAX_COORDINATE_M
+    if far.any():
+        row, axis = np.unravel_index(int(np.argmax(far)), far.shape)
+        value = float(points[row, axis])
+        within(path, f"vertex {row}: {XYZ[axis]}", value, lo=0.0, hi=MAX_COORDINATE_M, unit="m")
