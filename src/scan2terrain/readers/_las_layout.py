@@ -1,20 +1,33 @@
-"""LAS/LAZ header and LAZ chunk-table checks against the file's size, from the raw bytes.
+"""LAS/LAZ header and LAZ chunk-table checks against the file's size, the format and the physical
+world, from the raw bytes.
 
 laspy reads VLRs by a count and lazrs allocates a chunk table by another, and a corrupt count
 made them take all memory or abort the process (a Rust allocation failure is not an exception);
-so :func:`check_las_layout` runs before either reads. A Rust panic in lazrs (pyo3's
-``PanicException``, a ``BaseException``) is recognised by :func:`is_panic`.
+so :func:`check_las_layout` runs before either reads. It also refuses scales, offsets and bounds
+no survey has (``_limits.py``) and a LASzip VLR whose items do not describe the header's point
+format. A Rust panic in lazrs (pyo3's ``PanicException``, a ``BaseException``) is recognised by
+:func:`is_panic`.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import struct
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._limits import (
+    MAX_COORDINATE_M,
+    MAX_SPACING_DEG,
+    MAX_SPACING_M,
+    MIN_SPACING_DEG,
+    MIN_SPACING_M,
+    exact_after_scaling,
+    within,
+)
 
 # LAS 1.0-1.4 "public header block" and LAZ (LASzip) layout: the laszip VLR, then at the start
 # of the point data an int64 offset to the chunk table (-1 or 0: the writer could not seek back
@@ -63,6 +76,7 @@ def check_las_layout(
             f"corrupt LAS header: {n_vlrs:,} VLRs cannot fit in the {start - header_size} bytes "
             "between the header and the points",
         )
+    _check_coordinates(head, count, where, lambda: _crs_kind(f, header_size, start, n_vlrs))
     if n_evlrs:
         _check_evlrs(f, size, first_evlr, n_evlrs, where)
     if format_id & 0xC0 != 0x80:  # not compressed (laspy's rule: bit 7 set, bit 6 clear)
@@ -98,6 +112,118 @@ def _check_scales(head: bytes, where: Path | str) -> None:
             where,
             f"corrupt LAS header: offsets ({', '.join(f'{v:g}' for v in offsets)}) must be finite",
         )
+
+
+#: The LAS header's names of the axes' numbers, as the specification spells them.
+_AXES = ("X", "Y", "Z")
+#: An int32 coordinate's reach from its offset, in steps of its scale.
+_INT32_STEPS = 2.0**31
+
+
+def _check_coordinates(
+    head: bytes, count: int, where: Path | str, crs_kind: Callable[[], str | None]
+) -> None:
+    """Refuse scales, offsets and bounds the physical world has no use for (``_limits.py``),
+    and offsets that float64 cannot hold to within their scale's step at the int32 range.
+
+    Scales are metres (MIN_SPACING_M..MAX_SPACING_M); x and y scales are degrees of arc
+    (MIN_SPACING_DEG..MAX_SPACING_DEG) in a geographic CRS. ``crs_kind`` ("geographic",
+    "projected" or None: no CRS record) is asked only for an x or y scale outside the range
+    both units allow; a file that names no CRS is taken to be in degrees when its header's x
+    and y bounds lie within +-360 and +-90 (geographic LAS without a CRS record exists). Z is
+    metres (or feet) in every CRS. Offsets and the bounds (the streamed path plans its tiles,
+    and both paths their resolution, by them) lie within MAX_COORDINATE_M, min <= max."""
+    scales = struct.unpack_from("<3d", head, 131)
+    offsets = struct.unpack_from("<3d", head, 155)
+    bounds = struct.unpack_from("<6d", head, 179)  # max X, min X, max Y, min Y, max Z, min Z
+    highs, lows = bounds[0::2], bounds[1::2]
+    for axis, name in enumerate(_AXES):
+        unit = "m"
+        lo, hi = MIN_SPACING_M, MAX_SPACING_M
+        if axis < 2 and not MIN_SPACING_M <= scales[axis] <= MAX_SPACING_DEG:
+            kind = crs_kind()
+            degrees = kind == "geographic" or (
+                kind is None
+                and all(abs(v) <= 360.0 for v in (lows[0], highs[0]))
+                and all(abs(v) <= 90.0 for v in (lows[1], highs[1]))
+            )
+            if degrees:
+                unit, lo, hi = "deg", MIN_SPACING_DEG, MAX_SPACING_DEG
+        within(where, f"{name} scale factor", scales[axis], lo=lo, hi=hi, unit=unit)
+        within(where, f"{name} offset", offsets[axis], lo=0.0, hi=MAX_COORDINATE_M, unit=unit)
+        exact_after_scaling(where, name, scales[axis], offsets[axis], _INT32_STEPS * scales[axis])
+        if count:
+            for bound, value in (("Max", highs[axis]), ("Min", lows[axis])):
+                within(where, f"{bound} {name}", value, lo=0.0, hi=MAX_COORDINATE_M, unit=unit)
+            if lows[axis] > highs[axis]:
+                raise InputError(
+                    where,
+                    f"Min {name} = {lows[axis]:.6g} {unit} is above Max {name} = "
+                    f"{highs[axis]:.6g} {unit}: the header's bounds are corrupt",
+                )
+
+
+#: GeoTIFF keys (LAS 1.0-1.4) and OGC WKT (LAS 1.4) records of a LAS file's CRS.
+_GEOKEYS = (b"LASF_Projection", 34735)
+_WKT = (b"LASF_Projection", 2112)
+#: GTModelTypeGeoKey and its values; ProjectedCSTypeGeoKey; GeographicTypeGeoKey.
+_MODEL_TYPE, _PROJECTED, _GEOGRAPHIC, _GEOCENTRIC = 1024, 1, 2, 3
+_PROJECTED_KEY, _GEOGRAPHIC_KEY = 3072, 2048
+#: The first CRS keyword of a WKT (1 or 2) names its kind: a projected CRS names its base
+#: geographic one only inside its own brackets, a compound one its horizontal CRS first.
+_WKT_KIND = re.compile(
+    rb"\b(PROJCS|PROJCRS|PROJECTEDCRS|GEOCCS|GEOGCS|GEOGCRS|GEOGRAPHICCRS|GEODCRS|GEODETICCRS)\s*\["
+)
+
+
+def _crs_kind(f: BinaryIO, header_size: int, start: int, n: int) -> str | None:
+    """The kind of the file's CRS: "geographic", "projected" (geocentric too: metres) or None
+    (no CRS record among the header's ``n`` VLRs, or none readable; one in an EVLR of LAS 1.4
+    is not looked for), from its GeoTIFF keys or WKT (the VLRs' count checked to fit before the
+    points)."""
+    pos = header_size
+    kinds = []
+    for _ in range(n):  # a loop over the header's few VLRs
+        raw = _read_at(f, pos, _VLR_HEADER)
+        if len(raw) < _VLR_HEADER or pos + _VLR_HEADER > start:
+            break
+        user, record_id, length = struct.unpack_from("<16sHH", raw, 2)
+        key = (user.split(b"\0")[0], record_id)
+        if key in (_GEOKEYS, _WKT):
+            data = _read_at(f, pos + _VLR_HEADER, length)
+            kinds.append(_geokeys_kind(data) if key == _GEOKEYS else _wkt_kind(data))
+        pos += _VLR_HEADER + length
+    if "geographic" in kinds:
+        return "geographic"
+    return "projected" if "projected" in kinds else None
+
+
+def _geokeys_kind(data: bytes) -> str | None:
+    """A GeoKeyDirectoryTag's model type: its header (4 uint16, the last the number of keys),
+    then keys of 4 uint16 (id, location, count, value)."""
+    if len(data) < 8:
+        return None
+    n = min(struct.unpack_from("<H", data, 6)[0], len(data) // 8 - 1)
+    keys = {}
+    for i in range(n):  # a loop over a few dozen keys
+        key, location, _, value = struct.unpack_from("<4H", data, 8 + 8 * i)
+        if location == 0:  # the value is in the key itself
+            keys[key] = value
+    model = keys.get(_MODEL_TYPE)
+    geographic_only = _GEOGRAPHIC_KEY in keys and _PROJECTED_KEY not in keys
+    if model == _GEOGRAPHIC or (model is None and geographic_only):
+        return "geographic"
+    if model in (_PROJECTED, _GEOCENTRIC) or _PROJECTED_KEY in keys:
+        return "projected"
+    return None
+
+
+def _wkt_kind(data: bytes) -> str | None:
+    found = _WKT_KIND.search(data.upper())
+    if found is None:
+        return None
+    word = found.group(1)
+    return "projected" if word.startswith((b"PROJ", b"GEOCCS")) else "geographic"
 
 
 def _check_evlrs(f: BinaryIO, size: int, first: int, n: int, where: Path | str) -> None:

@@ -26,6 +26,7 @@ from scan2terrain.errors import InputError
 from scan2terrain.readers._cloud_common import Decoded
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._las_layout import check_las_layout, is_panic, panic_error
+from scan2terrain.readers._limits import MAX_COORDINATE_M, within
 from scan2terrain.types import LasLayout, LasVlr
 
 LAS_SUFFIXES = (".las", ".laz")
@@ -101,10 +102,11 @@ def read_las(
                     present.update(np.unique(codes).tolist())
                     keep = np.isin(codes, classes)
                     m = int(np.count_nonzero(keep))
+                first = seen - len(chunk)  # the chunk's first point in the file
                 if keep is None:
-                    _xyz(chunk, out=points[kept : kept + m])
+                    _xyz(chunk, out=points[kept : kept + m], where=path, first=first)
                 else:
-                    points[kept : kept + m] = _xyz(chunk)[keep]
+                    points[kept : kept + m] = _xyz(chunk, where=path, first=first)[keep]
                 for name in names:
                     values = np.asarray(chunk[name])
                     if name in ("red", "green", "blue") and len(values):
@@ -120,6 +122,8 @@ def read_las(
             if attributes:
                 layout = _layout(header)
     except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError) as exc:
+        if isinstance(exc, InputError):
+            raise
         # lazrs raises LazrsError (a RuntimeError) for corrupt or truncated LAZ data.
         raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from exc
     except BaseException as exc:
@@ -313,8 +317,8 @@ def iter_las(
                 chunk = reader.read_points(min(step, want - seen))
                 if len(chunk) == 0:
                     break
+                xyz = _xyz(chunk, origin, where=where, first=start + seen)
                 seen += len(chunk)
-                xyz = _xyz(chunk, origin)
                 if classes is not None:
                     xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
                 yield xyz
@@ -336,22 +340,30 @@ def _xyz(
     points: Any,
     origin: NDArray[np.float64] | None = None,
     out: NDArray[np.float64] | None = None,
+    *,
+    where: Path | str,
+    first: int,
 ) -> NDArray[np.float64]:
     """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, exactly as laspy scales
     them (``X * scale + offset``), less ``origin`` (metres, default none); into ``out`` (C-
-    contiguous (n, 3)) when given."""
+    contiguous (n, 3)) when given. InputError naming ``where`` and the point (``first`` is the
+    index of the record's first point in the file) for a coordinate beyond
+    MAX_COORDINATE_M."""
     from scan2terrain.readers._las_kernels import scaled_xyz
 
     if out is None:
         out = np.empty((len(points), 3), dtype=np.float64)
     arr = points.array
-    scaled_xyz(
-        arr["X"],
-        arr["Y"],
-        arr["Z"],
-        np.asarray(points.scales, dtype=np.float64),
-        np.asarray(points.offsets, dtype=np.float64),
-        np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64),
-        out,
-    )
+    scales = np.asarray(points.scales, dtype=np.float64)
+    offsets = np.asarray(points.offsets, dtype=np.float64)
+    shift = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
+    scaled_xyz(arr["X"], arr["Y"], arr["Z"], scales, offsets, shift, out)
+    # Only where the header lets an int32 reach beyond the limit (a scale of 0.5 m or more;
+    # _las_layout has checked the offsets) is there a point to look for: usual files pay nothing.
+    for axis in np.flatnonzero(np.abs(offsets) + 2.0**31 * scales > MAX_COORDINATE_M):
+        far = np.flatnonzero(np.abs(out[:, axis] + shift[axis]) > MAX_COORDINATE_M)
+        if len(far):
+            value = float(out[far[0], axis] + shift[axis])
+            name = f"point {first + int(far[0])}: {'XYZ'[axis]}"
+            within(where, name, value, lo=0.0, hi=MAX_COORDINATE_M, unit="m")
     return out

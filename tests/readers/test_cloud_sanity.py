@@ -1,0 +1,256 @@
+"""Issue 28, hostile files round 2: the numbers of point-cloud files against the physical world.
+
+LAS/LAZ scales, offsets and header bounds (metres, or degrees of arc where the file's CRS is
+geographic), coordinates that must stay exact in float64, the LASzip VLR lazrs decodes by, and
+the coordinates of CSV/XYZ and PCD files. Each input here was read as valid (a world written
+from nonsense), failed with exit 1, or took the process down with SIGABRT; each is refused now
+through the real command, on the default path and ``--stream`` alike, with exit 2 and exactly
+one stderr line ``scan2terrain: error: <path>: <field> = <value> ...``, and nothing written.
+
+The commands run once for the module through :func:`tests.mutation_runner.run_cases` (forked
+children under an address-space limit: an abort is reported as a signal, not pytest's death).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scan2terrain.errors import InputError
+from scan2terrain.readers._limits import MAX_COORDINATE_M
+from tests.mutation_runner import Case, Outcome, run_cases
+
+ROOT = Path(__file__).resolve().parents[2]
+CLOUDS = ROOT / "fixtures/clouds"
+SIMPLE_LAS = CLOUDS / "pc_las_simple_twin/simple.las"
+SIMPLE_LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
+AUTZEN_LAZ = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
+LIMIT_BYTES = 3 << 30
+TIMEOUT_S = 60
+WORLD = ["--simulator", "gz", "--no-preview"]
+
+# The LAS 1.0-1.4 header: three float64 scale factors at byte 131, three offsets at 155, then
+# the bounds max X, min X, max Y, min Y, max Z, min Z from byte 179.
+SCALE, OFFSET, BOUNDS = 131, 155, 179
+
+
+def one_line(o: Outcome, src: Path) -> str:
+    """The command's only stderr line: an error naming ``src`` (exit 2, nothing written)."""
+    lines = o.stderr.strip().splitlines()
+    assert o.exit == 2 and o.signal is None, o.describe()
+    assert len(lines) == 1, o.describe()
+    assert lines[0].startswith(f"scan2terrain: error: {src}: "), o.describe()
+    assert not o.new_files, o.describe()
+    return lines[0]
+
+
+def _patched(src: Path, dst: Path, edits: dict[int, float]) -> Path:
+    data = bytearray(src.read_bytes())
+    for at, value in edits.items():
+        struct.pack_into("<d", data, at, value)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def _las(
+    path: Path,
+    xyz: np.ndarray,
+    *,
+    scales: tuple[float, float, float],
+    offsets: tuple[float, float, float],
+    crs: str | None = None,
+    version: str = "1.2",
+) -> Path:
+    """A LAS file laspy writes (point format 3, or 6 for 1.4), with ``crs`` (GeoKeys before
+    LAS 1.4, WKT in 1.4) when given."""
+    import laspy  # type: ignore[import-untyped]
+
+    header = laspy.LasHeader(point_format=6 if version == "1.4" else 3, version=version)
+    header.scales = np.array(scales)
+    header.offsets = np.array(offsets)
+    if crs is not None:
+        import pyproj
+
+        header.add_crs(pyproj.CRS(crs))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.write(path)
+    return path
+
+
+#: Points about Portland, in degrees of longitude and latitude and metres of height.
+DEGREES = np.array([[-122.68, 45.52, 15.0], [-122.67, 45.53, 19.5], [-122.675, 45.525, 17.25]])
+#: Points in UTM zone 10N, metres (within the 2.1 m a 1e-9 scale reaches from its offset).
+UTM = np.array([[525_000.5, 5_040_000.25, 15.0], [525_001.5, 5_040_001.0, 19.5]])
+
+
+def _las_inputs(tmp: Path) -> dict[str, tuple[Path, list[str]]]:
+    """name -> (the input, its command line with {in} and {out})."""
+    world = ["cloud2world", "{in}", "-o", "{out}", *WORLD]
+    stream = [*world, "--stream"]
+    convert = ["convert", "{in}", "{out}.xyz"]
+    header: dict[str, dict[int, float]] = {
+        "x-scale-1e-300": {SCALE: 1e-300},  # exit 0: a world of one point
+        "y-scale-denormal": {SCALE + 8: 5e-324},
+        "z-scale-1e-300": {SCALE + 16: 1e-300},
+        "x-scale-1e10": {SCALE: 1e10},  # --stream: exit 1, "array is too big"
+        "z-scale-1e10": {SCALE + 16: 1e10},
+        "x-offset-1e17": {OFFSET: 1e17},  # --stream: exit 0, the default path another refusal
+        "y-offset-1e300": {OFFSET + 8: 1e300},
+        "z-offset--1e300": {OFFSET + 16: -1e300},
+        "max-x-1e300": {BOUNDS: 1e300},  # two lines: a numpy warning, then "no known voxel"
+        "min-y--1e17": {BOUNDS + 24: -1e17},
+        "max-z-inf": {BOUNDS + 32: math.inf},
+        "min-x-over-max-x": {BOUNDS + 8: 7e5},  # the bounds planned the stream's tiles
+    }
+    inputs: dict[str, tuple[Path, list[str]]] = {}
+    for name, edits in header.items():
+        src = _patched(SIMPLE_LAS, tmp / f"{name}.las", edits)
+        inputs[name] = (src, world)
+        inputs[f"{name} --stream"] = (src, stream)
+    laz = _patched(SIMPLE_LAZ, tmp / "laz-x-offset-1e17.laz", {OFFSET: 1e17})
+    inputs["laz-x-offset-1e17"] = (laz, world)
+    inputs["laz-x-offset-1e17 --stream"] = (laz, stream)
+    # A scale of 1 m lets an int32 reach 2.1e9 m: a point beyond the limit under sane bounds.
+    far = _las(tmp / "far.las", np.array([[2e9, 0.0, 0.0], [0.0, 5.0, 1.0]]),
+               scales=(1.0, 1.0, 0.01), offsets=(0.0, 0.0, 0.0))  # fmt: skip
+    _patched(far, far, {BOUNDS: 10.0})
+    inputs["far-point"] = (far, world)
+    inputs["far-point --stream"] = (far, stream)
+    # Degrees of arc: the scales of geographic LAS (1e-9 degree is 0.1 mm).
+    for name, crs, version in (
+        ("geographic-geokeys", "EPSG:4326", "1.2"),
+        ("geographic-wkt", "EPSG:4326", "1.4"),
+        ("no-crs-degrees", None, "1.2"),
+    ):
+        path = _las(tmp / f"{name}.las", DEGREES, scales=(1e-9, 1e-9, 0.001),
+                    offsets=(-122.0, 45.0, 0.0), crs=crs, version=version)  # fmt: skip
+        inputs[name] = (path, convert)
+    inputs["projected-1e-9"] = (
+        _las(tmp / "projected-1e-9.las", UTM, scales=(1e-9, 1e-9, 0.001),
+             offsets=(525_000.0, 5_040_000.0, 0.0), crs="EPSG:32610"),
+        convert,
+    )  # fmt: skip
+    inputs["no-crs-metres-1e-9"] = (
+        _las(tmp / "no-crs-metres-1e-9.las", UTM, scales=(1e-9, 1e-9, 0.001),
+             offsets=(525_000.0, 5_040_000.0, 0.0)),
+        convert,
+    )  # fmt: skip
+    geo = _las(tmp / "geographic-inexact.las", DEGREES, scales=(1e-9, 1e-9, 0.001),
+               offsets=(-122.0, 45.0, 0.0), crs="EPSG:4326")  # fmt: skip
+    inputs["geographic-inexact"] = (_patched(geo, geo, {SCALE: 1e-11, OFFSET: 1e6}), convert)
+    geo10 = _las(tmp / "geographic-10-degrees.las", DEGREES, scales=(1e-9, 1e-9, 0.001),
+                 offsets=(-122.0, 45.0, 0.0), crs="EPSG:4326")  # fmt: skip
+    inputs["geographic-10-degrees"] = (_patched(geo10, geo10, {SCALE + 8: 10.0}), convert)
+    return inputs
+
+
+def _run(tmp: Path, inputs: dict[str, tuple[Path, list[str]]]) -> dict[str, tuple[Path, Outcome]]:
+    cases = []
+    for name, (src, argv) in inputs.items():
+        out = tmp / "out" / re.sub(r"\W+", "_", name)
+        out.mkdir(parents=True)
+        filled = [a.replace("{in}", str(src)).replace("{out}", str(out / "o")) for a in argv]
+        cases.append(Case(name, filled, str(out)))
+    results = run_cases(cases, limit_bytes=LIMIT_BYTES, timeout_s=TIMEOUT_S, workdir=tmp / "_r")
+    return {c.name: (inputs[c.name][0], o) for c, o in zip(cases, results, strict=True)}
+
+
+@pytest.fixture(scope="module")
+def las_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Outcome]]:
+    tmp = tmp_path_factory.mktemp("las")
+    return _run(tmp, _las_inputs(tmp))
+
+
+# --- LAS/LAZ: scales, offsets and bounds --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("case", "field"),
+    [
+        ("x-scale-1e-300", "X scale factor = 1e-300 m"),
+        ("y-scale-denormal", "Y scale factor = 4.94066e-324 m"),
+        ("z-scale-1e-300", "Z scale factor = 1e-300 m"),
+        ("x-scale-1e10", "X scale factor = 1e+10 m"),
+        ("z-scale-1e10", "Z scale factor = 1e+10 m"),
+        ("x-offset-1e17", "X offset = 1e+17 m"),
+        ("y-offset-1e300", "Y offset = 1e+300 m"),
+        ("z-offset--1e300", "Z offset = -1e+300 m"),
+        ("max-x-1e300", "Max X = 1e+300 m"),
+        ("min-y--1e17", "Min Y = -1e+17 m"),
+        ("max-z-inf", "Max Z = inf m"),
+        ("min-x-over-max-x", "Min X = 700000 m is above Max X = 638983 m"),
+        ("laz-x-offset-1e17", "X offset = 1e+17 m"),
+        ("far-point", "point 0: X = 2e+09 m"),
+    ],
+)
+def test_las_numbers_beyond_the_physical_world_are_refused_on_both_paths(
+    las_runs: dict[str, tuple[Path, Outcome]], case: str, field: str
+) -> None:
+    """One answer whichever path: the same line from the default path and ``--stream``."""
+    src, default = las_runs[case]
+    _, streamed = las_runs[f"{case} --stream"]
+    line = one_line(default, src)
+    assert line.startswith(f"scan2terrain: error: {src}: {field}"), line
+    assert one_line(streamed, src) == line
+
+
+def test_las_scale_limits_follow_the_files_crs(las_runs: dict[str, tuple[Path, Outcome]]) -> None:
+    """1e-9 is a geographic LAS's scale (0.1 mm in degrees): read where the CRS is geographic
+    (GeoKeys or WKT), or unknown with x and y within degrees' range; refused in metres."""
+    for case in ("geographic-geokeys", "geographic-wkt", "no-crs-degrees"):
+        src, o = las_runs[case]
+        assert o.exit == 0 and o.signal is None, o.describe()
+        written = np.loadtxt(Path(o.argv[-1]))
+        np.testing.assert_allclose(written, DEGREES, atol=1e-9)
+    for case in ("projected-1e-9", "no-crs-metres-1e-9"):
+        src, o = las_runs[case]
+        line = one_line(o, src)
+        assert f"{src}: X scale factor = 1e-09 m makes no sense" in line, line
+    src, o = las_runs["geographic-10-degrees"]
+    assert f"{src}: Y scale factor = 10 deg makes no sense" in one_line(o, src)
+
+
+def test_las_offsets_that_float64_cannot_hold_exactly_are_refused(
+    las_runs: dict[str, tuple[Path, Outcome]],
+) -> None:
+    """A 1e-11 degree scale is legal, an offset of 1e6 too, but not both: steps of 1e-11 at
+    1e6 merge in float64."""
+    src, o = las_runs["geographic-inexact"]
+    line = one_line(o, src)
+    assert f"{src}: X: offset 1e+06 with scale 1e-11 cannot be held exactly" in line, line
+
+
+def test_las_header_checks_read_the_fixtures(tmp_path: Path) -> None:
+    """The fixtures' headers pass (scales 0.01 in metres and in feet, no CRS and a projected
+    one), through every reader."""
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import iter_las, las_info
+
+    for path in (SIMPLE_LAS, SIMPLE_LAZ, AUTZEN_LAZ):
+        cloud = read_cloud(path)
+        info = las_info(path)
+        streamed = np.concatenate(list(iter_las(path)))
+        np.testing.assert_array_equal(streamed, cloud.points)
+        assert info.points == len(cloud.points)
+        assert np.abs(cloud.points).max() < MAX_COORDINATE_M
+
+
+def test_las_header_refusals_name_the_field_in_process(tmp_path: Path) -> None:
+    """las_info, read_cloud and iter_las give the same refusal (the stream plans by las_info)."""
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import iter_las, las_info
+
+    path = _patched(SIMPLE_LAS, tmp_path / "s.las", {OFFSET + 8: 1e17})
+    readers: list[Callable[[Path], object]] = [read_cloud, las_info, lambda p: list(iter_las(p))]
+    for read in readers:
+        with pytest.raises(InputError) as info:
+            read(path)
+        assert info.value.path == path
+        assert info.value.problem.startswith("Y offset = 1e+17 m makes no sense"), info.value
