@@ -63,7 +63,7 @@ RUNNER = textwrap.dedent(
             # cost per worker, counted in the start-up, not in the rate.
             probe = stream.plan_clouds(files[:1], cfg)
             warm = [stream.CloudChunk(probe[0][0].path, 0, 1000, 1000)]
-            client.run(stream.rasterise, warm, probe[1])
+            client.run(stream.rasterize, warm, probe[1])
             extra["cluster_start_s"] = time.perf_counter() - ts
             cfg.stream.scheduler = cluster.scheduler_address
         if mode == "dask-2":

@@ -45,6 +45,8 @@ if TYPE_CHECKING:
 
 #: Called after every scan: (counts so far, scans expected in total, 0 when unknown).
 ScanProgress = Callable[["ScanCounts", int], None]
+#: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
+StreamProgress = Callable[[int, int, int], None]
 
 ScalarT = TypeVar("ScalarT", bound=np.generic)
 

@@ -365,10 +365,6 @@ def octree_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def pose6(text: str) -> list[float]:
-    return [float(v) for v in text.replace(",", " ").split()]
-
-
 def scan_options(p: argparse.ArgumentParser, *, bag: bool, insert: bool = True) -> None:
     """How scans are read and posed; ``insert``: the command inserts them into an octree."""
     s = p.add_argument_group("scans and poses")

@@ -13,7 +13,7 @@ and owns no algorithm.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -30,7 +30,7 @@ from scan2terrain.config import Config
 from scan2terrain.errors import ConfigError, InputError, about
 from scan2terrain.readers.points import hits_of, local_origin, start_of
 from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.steps import PointColumns, ScanProgress
+from scan2terrain.steps import PointColumns, ScanProgress, StreamProgress
 from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 
@@ -39,9 +39,6 @@ if TYPE_CHECKING:
     from scan2terrain.readers.bag import Bag
     from scan2terrain.readers.scans import BagPlan
 
-Progress = ScanProgress
-#: Streaming: called after every task: (tasks done, tasks in all, points counted so far).
-StreamProgress = Callable[[int, int, int], None]
 #: The octree's keys reach this many voxels either side of the origin (OctoMap's depth 16).
 KEY_RANGE = 32768
 #: map_saver's thresholds (percent) for an OccupancyGrid message: >= 65 occupied, <= 25 free.
@@ -79,7 +76,7 @@ def bag2world(
     cfg: Config,
     *,
     overwrite: bool = False,
-    progress: Progress | None = None,
+    progress: ScanProgress | None = None,
     stream_progress: StreamProgress | None = None,
 ) -> Result:
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
@@ -175,7 +172,7 @@ def bag_octree(
     bag: Bag,
     cfg: Config,
     plan: BagPlan,
-    progress: Progress | None = None,
+    progress: ScanProgress | None = None,
     columns: PointColumns | None = None,
     *,
     recorder: BeamRecorder | None = None,

@@ -25,7 +25,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.grids.tiles import Lattice, TileRecords, TileSet
+from scan2terrain.steps import StreamProgress
 
 if TYPE_CHECKING:
     from scan2terrain.commands.replay import Replay
@@ -51,9 +52,6 @@ CHUNKS_PER_TASK = 4
 SCANS_PER_TASK = 256
 
 T = TypeVar("T")
-
-#: Called after every task: (tasks done, tasks in all, points counted so far).
-Progress = Callable[[int, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -232,7 +230,7 @@ def plan_bag_chunks(
 # --- one task ---------------------------------------------------------------------------------
 
 
-def rasterise(task: Sequence[Chunk], job: Job) -> tuple[TileRecords, BeamRecorder | None]:
+def rasterize(task: Sequence[Chunk], job: Job) -> tuple[TileRecords, BeamRecorder | None]:
     """The cells of a task's end points (one or more chunks): a Dask task's work. Only the
     cells with a point travel back, not the tiles they were counted in; with them, for a bag,
     the recorded beams of its scans (for the replay)."""
@@ -367,16 +365,16 @@ def _bag_points(
 
 
 def run(
-    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None = None
+    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: StreamProgress | None = None
 ) -> tuple[TileSet, BeamRecorder | None]:
-    """Every chunk rasterised and merged: here, or on Dask with ``stream.workers`` or
+    """Every chunk rasterized and merged: here, or on Dask with ``stream.workers`` or
     ``stream.scheduler``; for a bag, its recorded beams too. The result does not depend on
     which."""
     st = cfg.stream
     if st.workers or st.scheduler:
         return _run_dask(chunks, job, cfg, progress)
     # Straight into the result (the same sums, no merge), reading ahead across chunks: a file
-    # of one chunk is read while the previous one is rasterised.
+    # of one chunk is read while the previous one is rasterized.
     total = TileSet(job.lattice)
     recorder = _recorder(job)
     for i, points in _read_ahead(_numbered_points(chunks, job, recorder)):
@@ -399,7 +397,7 @@ def _numbered_points(
 
 
 def _run_dask(
-    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: Progress | None
+    chunks: Sequence[Chunk], job: Job, cfg: Config, progress: StreamProgress | None
 ) -> tuple[TileSet, BeamRecorder | None]:
     """The chunks as Dask tasks (:func:`tasks_of`); results merged on the client as they
     complete. A task whose worker dies is run again by Dask on another worker, and its result
@@ -432,7 +430,7 @@ def _run_dask(
             )
             client = stack.enter_context(Client(cluster))
         tasks = tasks_of(chunks, st.chunk_points * CHUNKS_PER_TASK)
-        futures = client.map(rasterise, tasks, job=job, pure=False)
+        futures = client.map(rasterize, tasks, job=job, pure=False)
         for done, future in enumerate(as_completed(futures), start=1):
             records, part = future.result()
             total.merge(records)
@@ -448,14 +446,16 @@ def _run_dask(
 
 
 def stream_clouds(
-    files: Sequence[Path | str], cfg: Config, progress: Progress | None = None
+    files: Sequence[Path | str], cfg: Config, progress: StreamProgress | None = None
 ) -> Streamed:
     chunks, job, notes = plan_clouds(files, cfg)
     tiles, _ = run(chunks, job, cfg, progress)
     return Streamed(tiles, tuple(notes), origin=job.origin)
 
 
-def stream_bag(bags: Sequence[Path], cfg: Config, progress: Progress | None = None) -> Streamed:
+def stream_bag(
+    bags: Sequence[Path], cfg: Config, progress: StreamProgress | None = None
+) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
     from scan2terrain.commands.correct import correct_plan
