@@ -12,6 +12,7 @@ children, stderr captured at file descriptor 2, so lines C libraries print count
 
 from __future__ import annotations
 
+import random
 import shutil
 import struct
 import zlib
@@ -414,9 +415,55 @@ def ply_inputs(tmp: Path) -> Inputs:
     return out
 
 
+# --- rosbag2 metadata ---------------------------------------------------------------------------
+
+#: name -> (metadata.yaml's bytes from the good one's, words the refusal must hold).
+META_CASES: dict[str, tuple[Callable[[bytes], bytes], str]] = {
+    "meta-binary": (
+        lambda good: random.Random(28).randbytes(600),
+        "is not UTF-8 text",
+    ),
+    "meta-nul": (lambda good: good[:100] + b"\0\0\0" + good[103:], "malformed YAML at line"),
+    "meta-list": (lambda good: b"- 1\n- 2\n", "no 'rosbag2_bagfile_information' mapping"),
+    "meta-dup-key": (
+        lambda good: good.replace(b"  version: ", b"  storage_identifier: sqlite3\n  version: ", 1),
+        "found duplicate key 'storage_identifier'",  # ruamel's words, as rosbags reads it
+    ),
+    "meta-no-duration": (
+        lambda good: good.replace(b"  duration:", b"  lasted:", 1),
+        "rosbag2_bagfile_information has no 'duration'",
+    ),
+}
+
+
+def meta_inputs(tmp: Path) -> Inputs:
+    """The db3 and MCAP rosbag2 folders with a damaged metadata.yaml each: the file named."""
+    out: Inputs = {}
+    for fixture in ("bag2_derived_sick_lms1xx_db3", "bag2_derived_embark_luminar_mcap"):
+        good = (FIXTURES / "bags" / fixture / "metadata.yaml").read_bytes()
+        for name, (damage, _) in META_CASES.items():
+            folder = tmp / f"{fixture}-{name}"
+            folder.mkdir()
+            for f in (FIXTURES / "bags" / fixture).iterdir():
+                if f.suffix in (".db3", ".mcap"):
+                    (folder / f.name).symlink_to(f)
+            (folder / "metadata.yaml").write_bytes(damage(good))
+            kind = "db3" if "db3" in fixture else "mcap"
+            for command in (["inspect", str(folder)], ["convert", str(folder), "{out}.xyz"]):
+                case = f"{name}-{kind}-{command[0]}"
+                out[case] = (folder / "metadata.yaml", command, {})
+    return out
+
+
 # --- the commands, run once -----------------------------------------------------------------------
 
-BUILDERS: list[Callable[[Path], Inputs]] = [mcap_inputs, png_inputs, map_inputs, ply_inputs]
+BUILDERS: list[Callable[[Path], Inputs]] = [
+    mcap_inputs,
+    png_inputs,
+    map_inputs,
+    ply_inputs,
+    meta_inputs,
+]
 
 
 @pytest.fixture(scope="module")
@@ -592,3 +639,18 @@ def test_plys_with_lists_are_read(tmp_path: Path, data: Callable[[], bytes]) -> 
     path.write_bytes(data())
     got = read_cloud(path)
     np.testing.assert_allclose(got.points, _ply_points(), atol=1e-4)
+
+
+# --- 5. rosbag2: a metadata.yaml that is not one ------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["inspect", "convert"])
+@pytest.mark.parametrize("kind", ["db3", "mcap"])
+@pytest.mark.parametrize("case", list(META_CASES))
+def test_a_rosbag2_metadata_file_that_is_not_one_is_named(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str, kind: str, command: str
+) -> None:
+    """Seen (binary): two lines; and the folder named, its storage file blamed."""
+    src, o, _ = commands[f"{case}-{kind}-{command}"]
+    line = one_line(o, src)
+    assert META_CASES[case][1] in line, line

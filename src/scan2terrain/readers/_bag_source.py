@@ -36,6 +36,7 @@ import tempfile
 from collections.abc import Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -208,20 +209,86 @@ def _decompress(path: Path, stack: ExitStack) -> Path:
     return out.rename(out.with_suffix(_STORAGE_SUFFIX[kind]))
 
 
-def _metadata(folder: Path) -> dict[str, Any] | None:
-    """The ``rosbag2_bagfile_information`` of a rosbag2 folder, with ``relative_file_paths``
-    as plain names; None when it is not in order (rosbags then reads it and says what is
-    wrong)."""
+#: What rosbags reads of ``rosbag2_bagfile_information`` without a default.
+_METADATA_KEYS = (
+    "version",
+    "storage_identifier",
+    "relative_file_paths",
+    "duration",
+    "starting_time",
+    "message_count",
+    "topics_with_message_count",
+)
+
+
+def _metadata(meta: Path) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of a rosbag2 folder's ``metadata.yaml`` (``meta``),
+    with ``relative_file_paths`` as plain names. Read here first, so that what is wrong with it
+    is said of it: UTF-8 text, YAML with keys once each (as rosbags' ruamel has them), a
+    mapping with the keys rosbags reads."""
     import yaml
 
-    errors = (OSError, UnicodeError, yaml.YAMLError, RecursionError, ValueError, KeyError)
     try:
-        doc = yaml.safe_load((folder / "metadata.yaml").read_text(encoding="utf-8"))
-        info = dict(doc["rosbag2_bagfile_information"])
-        info["relative_file_paths"] = [PurePath(str(x)).name for x in info["relative_file_paths"]]
-    except (*errors, TypeError, AttributeError):
-        return None
-    return info
+        text = meta.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            meta, f"byte {exc.start} is not UTF-8 text: not a rosbag2 metadata.yaml"
+        ) from None
+    except OSError as exc:
+        raise InputError(meta, f"cannot read it ({exc.strerror or exc})") from exc
+    try:
+        doc = yaml.load(text, Loader=_unique_key_loader())
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow
+        line = text.count("\n", 0, exc.position) + 1
+        column = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        raise InputError(
+            meta,
+            f"malformed YAML at line {line}, column {column} (character #x{exc.character:04x} "
+            "is not allowed)",
+        ) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None)
+        detail = f" ({' '.join(str(problem).split())[:120]})" if problem else ""
+        raise InputError(meta, f"malformed YAML{where}{detail}") from None
+    except (RecursionError, ValueError):  # nested too deeply; an integer of 5000 digits
+        raise InputError(meta, "malformed YAML (nested too deeply, or a huge number)") from None
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise InputError(meta, "not rosbag2 metadata: no 'rosbag2_bagfile_information' mapping")
+    missing = [k for k in _METADATA_KEYS if k not in info]
+    if missing:
+        raise InputError(meta, f"rosbag2_bagfile_information has no {missing[0]!r}")
+    paths = info["relative_file_paths"]
+    if not isinstance(paths, list) or not all(isinstance(x, str) and x for x in paths):
+        raise InputError(meta, "its relative_file_paths is not a list of file names")
+    return {**info, "relative_file_paths": [PurePath(x).name for x in paths]}
+
+
+@cache
+def _unique_key_loader() -> type[Any]:
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """PyYAML's safe loader refusing a key twice in one mapping, as ruamel (rosbags) does."""
+
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            seen: set[Any] = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    twice = key in seen
+                    seen.add(key)
+                except TypeError:  # an unhashable key: PyYAML says so below
+                    continue
+                if twice:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"found duplicate key {key!r}", key_node.start_mark
+                    )
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
 
 
 def _unpack_file_mode(folder: Path, info: dict[str, Any], stack: ExitStack) -> Path | None:
@@ -256,12 +323,12 @@ def _rosbag2(path: Path, stack: ExitStack) -> _Source:
         raise InputError(
             meta, f"larger than {MAX_METADATA_BYTES:,} bytes: not a rosbag2 metadata file"
         )
-    info = _metadata(path)
-    listed = set() if info is None else set(info["relative_file_paths"])
+    info = _metadata(meta)
+    listed = set(info["relative_file_paths"])
     for entry in sorted(path.iterdir()):
         if entry.name.endswith(_STORAGE_NAMES) or entry.name in listed:
             regular_file(entry, "bag")
-    staged = None if info is None else _unpack_file_mode(path, info, stack)
+    staged = _unpack_file_mode(path, info, stack)
     if staged is not None:
         return _Source((path,), (staged,))
     if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
