@@ -36,6 +36,9 @@ def test_overrides_win_over_file(tmp_path: Path) -> None:
         ("filter:\n  size: 4\n", "filter.size"),
         ("world:\n  simulator: webots\n", "world.simulator"),
         ("world:\n  model_name: 'a b'\n", "world.model_name"),
+        ("dem:\n  max_elevation: 0\n", "dem.max_elevation = 0.0 is invalid: must be > 0"),
+        ("dem:\n  max_elevation: .nan\n", "'dem.max_elevation' = nan is invalid"),
+        ("dem:\n  max_elevation: 1.0e+10\n", "dem.max_elevation = 10000000000.0 is invalid"),
         ("nonsense: 1\n", "unknown config key 'nonsense'"),
         ("terrain: 3\n", "'terrain' must be a mapping"),
         ("- a\n- b\n", "config must be a mapping"),
@@ -46,3 +49,9 @@ def test_bad_config(tmp_path: Path, text: str, message: str) -> None:
     (tmp_path / "c.yaml").write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_config(tmp_path / "c.yaml")
+
+
+def test_max_elevation_default_is_the_readers_limit() -> None:
+    from scan2terrain.readers._limits import MAX_ELEVATION_M
+
+    assert Config().dem.max_elevation == MAX_ELEVATION_M

@@ -274,6 +274,10 @@ class DemConfig:
     #: Also write world_gz_dem.sdf, a gz-sim world that loads the GeoTIFF itself (gz-sim >= 7
     #: built with GDAL).
     passthrough: bool = False
+    #: Refuse a DEM with a valid elevation further than this from the datum, metres, either
+    #: sign: readers/_limits.py's MAX_ELEVATION_M (what a planet has; a corrupt strip read as
+    #: float32 gave 2.6e38 m), widened for a trusted file of something else.
+    max_elevation: float = 1e5
 
 
 @dataclass
@@ -524,6 +528,12 @@ class Config:
             "dem.resolution",
             c.dem.resolution,
             f"{MIN_CELL:g}..{MAX_CELL:g} metres",
+        )
+        _check(
+            0 < c.dem.max_elevation <= MAX_ORIGIN,
+            "dem.max_elevation",
+            c.dem.max_elevation,
+            f"> 0 and <= {MAX_ORIGIN:g} metres",
         )
         return self
 

@@ -374,7 +374,8 @@ def test_pointcloud2_point_step_beyond_numpy_is_refused() -> None:
 
 
 def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path: Path) -> None:
-    """A pixel scale of 1e300 was refused by the pipeline without naming the file."""
+    """A pixel scale of 1e300 was refused by the pipeline without naming the file; it is now
+    refused as a pixel size, before any resampling (issue 28)."""
     import shutil
 
     from scan2terrain.readers.dem import read_dem
@@ -389,7 +390,7 @@ def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path
         if struct.unpack_from("<H", data, entry)[0] == 33550:  # ModelPixelScale
             struct.pack_into("<d", data, struct.unpack_from("<I", data, entry + 8)[0], 1e300)
     path.write_bytes(bytes(data))
-    with pytest.raises(InputError, match="over the limit of 268435456") as info:
+    with pytest.raises(InputError, match=r"ModelPixelScale pixel width = 1e\+300 m") as info:
         read_dem(path)
     assert info.value.path == path
 

@@ -215,9 +215,9 @@ def test_gdal_scale_and_offset(tmp_path: Path) -> None:
         '<GDALMetadata><Item name="SCALE" sample="0" role="scale">0.1</Item>'
         '<Item name="OFFSET" sample="0" role="offset">-50</Item></GDALMetadata>'
     )
-    raster = np.array([[1000, 2000]], dtype=np.int16)
+    raster = np.array([[1000, 2000], [0, -500]], dtype=np.int16)  # row 0 = north
     dem = read_dem(write_geotiff(tmp_path / "d.tif", raster, extra=((42112, "s", 0, xml, True),)))
-    np.testing.assert_allclose(dem.heights, [[50.0, 150.0]])
+    np.testing.assert_allclose(dem.heights, [[-50.0, -100.0], [50.0, 150.0]])
 
 
 def test_geographic_on_another_body(tmp_path: Path) -> None:

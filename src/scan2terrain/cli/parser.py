@@ -465,3 +465,11 @@ def dem_command(sub: Any) -> None:
         help="also copy the GeoTIFF into a model and write world_gz_dem.sdf that loads it "
         "directly (gz-sim >= 7 built with GDAL)",
     )
+    g.add_argument(
+        "--max-elevation",
+        type=float,
+        metavar="M",
+        dest="dem.max_elevation",
+        help="refuse a DEM with an elevation (nodata excluded) further than M metres above or "
+        "below the datum: a planet's are within 100 km; widen it for a trusted file",
+    )

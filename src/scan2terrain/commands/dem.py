@@ -60,7 +60,12 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     if cfg.canvas.invert:
         raise ConfigError("canvas.invert (--invert) has no meaning for a DEM")
     source = Path(dem_path)
-    dem = read_dem(source, pixel_size=cfg.dem.resolution, max_pixels=cfg.max_pixels)
+    dem = read_dem(
+        source,
+        pixel_size=cfg.dem.resolution,
+        max_pixels=cfg.max_pixels,
+        max_elevation=cfg.dem.max_elevation,
+    )
     base = cfg.dem.resolution if cfg.dem.resolution is not None else dem.default_resolution()
     res = base / t.upsample
     cells = (dem.extent[0] / res + 2) * (dem.extent[1] / res + 2)

@@ -40,6 +40,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._limits import (
+    MAX_COORDINATE_M,
+    MAX_ELEVATION_M,
+    MAX_SPACING_DEG,
+    MAX_SPACING_M,
+    MIN_SPACING_DEG,
+    MIN_SPACING_M,
+    exact_after_scaling,
+    within,
+)
 from scan2terrain.readers.geotiff import (
     KEY_CITATION,
     KEY_GEOG_CITATION,
@@ -51,6 +61,7 @@ from scan2terrain.readers.geotiff import (
     LINEAR_UNITS,
     MODEL_GEOGRAPHIC,
     TAG_GDAL_NODATA,
+    TAG_TRANSFORMATION,
     angular_unit,
     gdal_nodata,
     gdal_scale_offset,
@@ -269,7 +280,11 @@ def _linear(
 
 
 def read_dem(
-    path: Path | str, *, pixel_size: float | None = None, max_pixels: int = 1 << 28
+    path: Path | str,
+    *,
+    pixel_size: float | None = None,
+    max_pixels: int = 1 << 28,
+    max_elevation: float = MAX_ELEVATION_M,
 ) -> Dem:
     """Read a single-band GeoTIFF DEM.
 
@@ -282,6 +297,9 @@ def read_dem(
         columns, y north = rows). Ignored when the file is georeferenced.
     max_pixels : int
         Refuse rasters with more pixels than this, before decoding.
+    max_elevation : float
+        Refuse a valid sample (nodata excluded) more than this many metres above or below the
+        datum, after GDAL's scale and offset and the vertical unit.
 
     Returns
     -------
@@ -290,13 +308,15 @@ def read_dem(
     Raises
     ------
     InputError
-        Missing, truncated or corrupt file; not a single-band raster; no georeference (and no
-        ``pixel_size``); an unsupported georeference; every pixel nodata; a compression that
-        needs ``imagecodecs`` when it is not installed.
+        Missing, truncated or corrupt file; not a single-band raster of at least 2 x 2
+        samples; no georeference (and no ``pixel_size``); an unsupported georeference; numbers
+        that make no sense (pixel sizes, the raster's placement, elevations: see
+        :mod:`._limits`); every pixel nodata; a compression that needs ``imagecodecs`` when it
+        is not installed.
     """
     path = Path(path)
     raw, tags, messages = read_band(path, max_pixels)
-    dem = _to_dem(path, raw, tags, pixel_size)
+    dem = _to_dem(path, raw, tags, pixel_size, max_elevation)
     if pixel_size is None and not dem.square:
         _check_resampled_size(path, dem, max_pixels)
     if messages:
@@ -351,7 +371,13 @@ def _count(v: float) -> str:
     return f"{round(v):,}" if v < 1e15 else f"{v:.3g}"
 
 
-def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: float | None) -> Dem:
+def _to_dem(
+    path: Path,
+    raw: NDArray[Any],
+    tags: dict[int, Any],
+    pixel_size: float | None,
+    max_elevation: float,
+) -> Dem:
     notes: list[str] = []
     keys = read_geokeys(path, tags)
     data = raw.astype(np.float64)
@@ -371,7 +397,11 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
     if isinstance(vertical, int) and vertical in LINEAR_UNITS and vertical != 9001:
         name, v_factor = LINEAR_UNITS[vertical]
         notes.append(f"heights converted from {name} to metres")
-    data = (data * scale + offset) * v_factor
+    with np.errstate(over="ignore", invalid="ignore"):  # refused below, not warned about
+        data = (data * scale + offset) * v_factor
+    known = data[valid]
+    floor, top = float(known.min()), float(known.max())
+    _check_elevations(path, data, valid, (floor, top), max_elevation)
 
     incomplete = incomplete_georeference(tags, keys)
     gt = None if incomplete else geotransform(path, tags, keys)
@@ -409,10 +439,16 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
     south = min(y0, y0 + rows * dy)
     sx, sy = abs(dx), abs(dy)
 
+    georef = "ModelTransformation" if TAG_TRANSFORMATION in tags else "ModelPixelScale"
+    tie = "ModelTransformation" if TAG_TRANSFORMATION in tags else "ModelTiepoint"
     radius = None
     if crs == "geographic":
         uname, per_unit = angular_unit(path, keys)
         radius = _radius(keys, notes)
+        _check_placement(
+            path, (georef, tie), (west, south), (sx, sy), (rows, cols),
+            degrees=per_unit / math.radians(1), reach=MAX_COORDINATE_M / radius / math.radians(1),
+        )  # fmt: skip
         lat_c = (south + rows * sy / 2) * per_unit
         if not (abs(south * per_unit) <= math.pi / 2 + 1e-9 and abs(lat_c) < math.pi / 2):
             raise InputError(path, f"latitude {south} {uname}s is out of range: wrong GeoKeys?")
@@ -421,6 +457,9 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
         origin_m = (k * west * per_unit, radius * south * per_unit)
     elif crs == "projected":
         uname, per_unit = linear_unit(path, keys, notes)
+        _check_placement(
+            path, (georef, tie), (west, south), (sx, sy), (rows, cols), metres=per_unit
+        )
         size_m = (sx * per_unit, sy * per_unit)
         origin_m = (west * per_unit, south * per_unit)
     else:
@@ -428,7 +467,6 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
         size_m = (sx, sy)
         origin_m = (west, south)
 
-    floor = float(data[valid].min())
     heights = np.where(valid, data, floor).astype(np.float32)
     if nodata is None and floor <= -9999:
         notes.append(
@@ -454,6 +492,77 @@ def _to_dem(path: Path, raw: NDArray[Any], tags: dict[int, Any], pixel_size: flo
         citation=citation,
         notes=tuple(notes),
     )
+
+
+def _check_elevations(
+    path: Path,
+    data: NDArray[np.float64],
+    valid: NDArray[np.bool_],
+    low_high: tuple[float, float],
+    max_elevation: float,
+) -> None:
+    """Refuse a valid sample beyond ``max_elevation`` metres either side of the datum (a
+    strip of the header read as float32 gave 2.6e38 m), naming the first such sample as the
+    file stores it (column, row from the north-west corner)."""
+    if all(math.isfinite(v) and abs(v) <= max_elevation for v in low_high):
+        return
+    with np.errstate(invalid="ignore"):
+        beyond = valid & ~(np.abs(data) <= max_elevation)
+    row, col = (int(v) for v in np.unravel_index(int(np.argmax(beyond)), data.shape))
+    try:
+        within(
+            path,
+            f"elevation (column {col}, row {row})",
+            float(data[row, col]),
+            lo=0.0,
+            hi=max_elevation,
+            unit="m",
+        )
+    except InputError as exc:
+        raise InputError(
+            path,
+            f"{exc.problem} (nodata excluded; --max-elevation widens it if the file is trusted)",
+        ) from None
+
+
+def _check_placement(
+    path: Path,
+    fields: tuple[str, str],
+    corner: tuple[float, float],
+    pixel: tuple[float, float],
+    shape: tuple[int, int],
+    *,
+    metres: float | None = None,
+    degrees: float | None = None,
+    reach: float = MAX_COORDINATE_M,
+) -> None:
+    """Refuse a georeference whose numbers make no sense (a pixel scale of 1e300 m made a world
+    3.3e301 m wide, a tie point of 1e308 was taken as placed): pixel sizes (CRS units) between
+    the spacing limits, in metres for a projected CRS (``metres`` per unit) or degrees of arc
+    for a geographic one (``degrees`` per unit), and the raster's edges within ``reach`` of the
+    CRS's origin (metres, or its equivalent in degrees on the body's sphere), where float64
+    still tells neighbouring pixels apart."""
+    scale_field, tie_field = fields
+    west, south = corner
+    sx, sy = pixel
+    rows, cols = shape
+    if degrees is not None:
+        unit, factor, lo, hi = "degrees", degrees, MIN_SPACING_DEG, MAX_SPACING_DEG
+    else:
+        unit, factor, lo, hi = "m", float(metres or 1.0), MIN_SPACING_M, MAX_SPACING_M
+    within(path, f"{scale_field} pixel width", sx * factor, lo=lo, hi=hi, unit=unit)
+    within(path, f"{scale_field} pixel height", sy * factor, lo=lo, hi=hi, unit=unit)
+    # The tie point is usually the north-west corner: its edges first.
+    edges = (
+        ("west", west),
+        ("north", south + rows * sy),
+        ("east", west + cols * sx),
+        ("south", south),
+    )
+    for name, value in edges:
+        within(path, f"{tie_field} {name} edge", value * factor, lo=0.0, hi=reach, unit=unit)
+    exact_after_scaling(path, f"{tie_field} west edge", sx, west, cols * sx)
+    exact_after_scaling(path, f"{tie_field} south edge", sy, south, rows * sy)
 
 
 def _as_sample(value: float, dtype: np.dtype[Any]) -> float | None:
