@@ -254,3 +254,118 @@ def test_las_header_refusals_name_the_field_in_process(tmp_path: Path) -> None:
             read(path)
         assert info.value.path == path
         assert info.value.problem.startswith("Y offset = 1e+17 m makes no sense"), info.value
+
+
+# --- LAZ: the laszip VLR lazrs decodes by -----------------------------------------------------
+
+
+def _laszip_payload(data: bytes) -> int:
+    """Where the laszip VLR's payload starts (its user id is at +2 of its 54-byte header)."""
+    return data.index(b"laszip encoded") - 2 + 54
+
+
+def _laz_with(src: Path, dst: Path, at: int, fmt: str, value: int) -> Path:
+    data = bytearray(src.read_bytes())
+    struct.pack_into(fmt, data, _laszip_payload(bytes(data)) + at, value)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+#: LASzip VLR payload fields: compressor (uint16 at 0), coder (2), chunk size (uint32 at 12),
+#: number of items (uint16 at 32), then items of type, size, version (uint16 each) from 34.
+VLR_FIELDS = {
+    "compressor-3": (0, "<H", 3, "laszip VLR compressor = 3"),
+    "compressor-7": (0, "<H", 7, "laszip VLR compressor = 7"),
+    "coder-1": (2, "<H", 1, "laszip VLR coder = 1"),
+    "item-1-type-10": (34, "<H", 10, "laszip VLR item 1 = type 10 (20 bytes, version 2)"),
+    "item-2-type-8": (40, "<H", 8, "laszip VLR item 2 = type 8 (8 bytes, version 2)"),
+    "item-3-version-3": (50, "<H", 3, "laszip VLR item 3 = type 8 (6 bytes, version 3)"),
+    "item-2-version-0": (44, "<H", 0, "laszip VLR item 2 = type 7 (8 bytes, version 0)"),
+    "item-1-type-6-swapped": (34, "<H", 7, "laszip VLR item 1 = type 7 (20 bytes, version 2)"),
+    # Two bytes of the chunk size (50,000 -> 2,139,079,504): lazrs allocated 73 GB for the
+    # last chunk's points and aborted the process (SIGABRT) where it could not have them.
+    "chunk-size-2-bytes": (12, "<I", 0x7F7FC350, "laszip VLR chunk size = 2139079504 points"),
+}
+
+
+def _laz_inputs(tmp: Path) -> dict[str, tuple[Path, list[str]]]:
+    world = ["cloud2world", "{in}", "-o", "{out}", *WORLD]
+    inputs: dict[str, tuple[Path, list[str]]] = {}
+    for name, (at, fmt, value, _) in VLR_FIELDS.items():
+        src = _laz_with(SIMPLE_LAZ, tmp / f"{name}.laz", at, fmt, value)
+        inputs[name] = (src, ["convert", "{in}", "{out}.xyz"])
+        inputs[f"{name} world"] = (src, world)
+        inputs[f"{name} --stream"] = (src, [*world, "--stream"])
+    # Seeded: two bytes of the laszip VLR's payload set to random values, in both fixtures
+    # (simple.laz is one chunk, so any chunk size from its point count up passes the table).
+    rng = np.random.default_rng(28)
+    for seed in (SIMPLE_LAZ, AUTZEN_LAZ):
+        data = seed.read_bytes()
+        payload = _laszip_payload(data)
+        length = struct.unpack_from("<H", data, payload - 54 + 20)[0]
+        for k in range(FLIPS):
+            mutated = bytearray(data)
+            for at in rng.choice(length, size=2, replace=False):
+                mutated[payload + int(at)] = int(rng.integers(256))
+            path = tmp / f"flip-{seed.stem}-{k}.laz"
+            path.write_bytes(bytes(mutated))
+            inputs[f"flip {seed.stem} {k}"] = (path, ["convert", "{in}", "{out}.xyz"])
+            inputs[f"flip {seed.stem} {k} --stream"] = (path, [*world, "--stream"])
+    return inputs
+
+
+#: Seeded mutations of each LAZ fixture's laszip VLR.
+FLIPS = 24
+
+
+@pytest.fixture(scope="module")
+def laz_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Outcome]]:
+    tmp = tmp_path_factory.mktemp("laz")
+    return _run(tmp, _laz_inputs(tmp))
+
+
+@pytest.mark.parametrize("case", list(VLR_FIELDS))
+def test_laszip_vlrs_that_do_not_describe_the_points_are_refused(
+    laz_runs: dict[str, tuple[Path, Outcome]], case: str
+) -> None:
+    """The laszip VLR against LASzip's rules and the header's point format: its compressor,
+    coder, items (type, size, version in LASzip's order) and chunk size; refused before lazrs
+    decodes by it, by convert, cloud2world and --stream alike."""
+    field = VLR_FIELDS[case][3]
+    for how in ("", " world", " --stream"):
+        src, o = laz_runs[case + how]
+        line = one_line(o, src)
+        head = f"scan2terrain: error: {src}: {field}"
+        assert line.startswith(head) and line[len(head)] in " :", line
+
+
+def _sane_xyz(o: Outcome) -> None:
+    """A converted cloud: the fixture's points exactly (the VLR fields lazrs does not decode by
+    -- LASzip's version, options, special EVLRs -- change nothing)."""
+    name = o.name.split()[1]
+    seed = SIMPLE_LAZ if name == SIMPLE_LAZ.stem else AUTZEN_LAZ
+    written = np.loadtxt(Path(o.argv[-1]))
+    from scan2terrain.readers.cloudfile import read_cloud
+
+    np.testing.assert_allclose(written, read_cloud(seed).points, rtol=0, atol=1e-9)
+
+
+def test_flipped_laszip_vlr_bytes_are_read_or_refused_never_a_signal(
+    laz_runs: dict[str, tuple[Path, Outcome]],
+) -> None:
+    """Every seeded mutation ends with exit 0 and the fixture's points (convert) or a world
+    (--stream), or exit 2 and one line naming the file: no signal, no exit 1."""
+    ends: dict[str, int] = {}
+    for name, (src, o) in laz_runs.items():
+        if not name.startswith("flip "):
+            continue
+        assert o.signal is None and o.exit in (0, 2), o.describe()
+        ends[name] = int(o.exit)
+        if o.exit == 2:
+            one_line(o, src)
+        elif "--stream" not in name:
+            _sane_xyz(o)
+        else:
+            assert (Path(o.argv[3]) / "scan2terrain.yaml").is_file(), o.describe()
+    # Both ends are met (the seeds are fixed): harmless fields read, the rest refused.
+    assert set(ends.values()) == {0, 2}, ends

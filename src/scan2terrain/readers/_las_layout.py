@@ -44,6 +44,34 @@ _CHUNKED = (2, 3)  # the laszip VLR's compressor: pointwise chunked, layered chu
 #: Points a byte of LAZ data can hold at most. LASzip packs about 150 identical points into a
 #: byte; a header claiming hundreds of times more is corrupt, and would be planned by.
 _LAZ_POINTS_PER_BYTE = 1 << 16
+#: The most points a fixed-size LAZ chunk may hold beyond the file's own point count. LASzip
+#: writes 50,000 (files smaller than a chunk keep that size); lazrs allocates a whole chunk of
+#: points for the last one, so two corrupt bytes of the size (2^31 points) made it abort the
+#: process (a Rust allocation failure, SIGABRT) where 73 GB could not be had.
+_LAZ_MAX_CHUNK = 1 << 22
+
+# LASzip's items (type, bytes) of each point format, in the order it writes them (LASzip's
+# laszip.cpp, setup()); the extra bytes of a longer record follow as one more item.
+_POINT10, _GPSTIME11, _RGB12, _WAVEPACKET13 = (6, 20), (7, 8), (8, 6), (9, 29)
+_POINT14, _RGB14, _RGBNIR14, _WAVEPACKET14 = (10, 30), (11, 6), (12, 8), (13, 29)
+_LASZIP_ITEMS = {
+    0: (_POINT10,),
+    1: (_POINT10, _GPSTIME11),
+    2: (_POINT10, _RGB12),
+    3: (_POINT10, _GPSTIME11, _RGB12),
+    4: (_POINT10, _GPSTIME11, _WAVEPACKET13),
+    5: (_POINT10, _GPSTIME11, _RGB12, _WAVEPACKET13),
+    6: (_POINT14,),
+    7: (_POINT14, _RGB14),
+    8: (_POINT14, _RGBNIR14),
+    9: (_POINT14, _WAVEPACKET14),
+    10: (_POINT14, _RGBNIR14, _WAVEPACKET14),
+}
+#: Point formats 0-5 are compressed pointwise (compressor 1, or 2 in chunks; items of version 1
+#: or 2; extra bytes as BYTE, type 0), 6-10 in layered chunks (compressor 3; versions 3 or 4;
+#: extra bytes as BYTE14, type 14). The arithmetic coder (0) is the only one.
+_POINTWISE = ((1, 2), (1, 2), 0)
+_LAYERED = ((3,), (3, 4), 14)
 
 
 def check_las_layout(
@@ -92,8 +120,9 @@ def check_las_layout(
         laszip = _laszip_payload(_read_at(f, header_size, start - header_size), n_vlrs)
         if laszip is not None:
             _check_laz(
-                f, size, laszip, start=start, record=record, count=count, where=where, decode=decode
-            )
+                f, size, laszip, start=start, record=record, count=count, where=where,
+                decode=decode, point_format=format_id & 0x3F,
+            )  # fmt: skip
 
 
 def _check_scales(head: bytes, where: Path | str) -> None:
@@ -266,9 +295,11 @@ def _check_laz(
     count: int,
     where: Path | str,
     decode: tuple[int, int | None] | None,
+    point_format: int,
 ) -> None:
-    """The chunk table against the header's point count and the file's size (LAZ, count > 0),
-    and the layer sizes of the chunks holding the points to ``decode``."""
+    """The laszip VLR against the header's point format (:func:`_check_laszip_vlr`), the chunk
+    table against the header's point count and the file's size (LAZ, count > 0), and the layer
+    sizes of the chunks holding the points to ``decode``."""
 
     def corrupt(problem: str) -> InputError:
         return InputError(where, f"corrupt LAZ file: {problem}")
@@ -286,6 +317,9 @@ def _check_laz(
         raise corrupt(
             f"its laszip VLR describes {item_size}-byte points, the header {record}-byte ones"
         )
+    _check_laszip_vlr(
+        laszip, n_items, point_format=point_format, record=record, count=count, where=where
+    )
     if struct.unpack_from("<H", laszip, 0)[0] not in _CHUNKED:
         return  # pointwise LAZ (LASzip 1.x) has no chunk table; lazrs refuses other values
     if chunk_size == 0:
@@ -350,6 +384,60 @@ def _check_laz(
             layers=layers,
             decode=decode,
             corrupt=corrupt,
+        )
+
+
+def _check_laszip_vlr(
+    laszip: bytes, n_items: int, *, point_format: int, record: int, count: int, where: Path | str
+) -> None:
+    """Refuse a laszip VLR (its ``n_items`` item records in bounds, their bytes adding up to the
+    header's ``record`` length) that LASzip would not have written for the header's point
+    format: its compressor, coder, items (type, size and version, in LASzip's order, the extra
+    bytes last) and, for fixed-size chunks, a chunk size of 1 to ``max(count,
+    _LAZ_MAX_CHUNK)`` points. lazrs decodes by these: an item of another type or version
+    decoded another field's bytes silently (a wrong type of the same size) or failed inside
+    its threads, and a chunk size of 2^31 points made it allocate 73 GB and abort."""
+    compressor, coder = struct.unpack_from("<HH", laszip, 0)
+    chunk_size = struct.unpack_from("<I", laszip, 12)[0]
+    if point_format not in _LASZIP_ITEMS:
+        return  # laspy refuses the point format itself
+    compressors, versions, extra = _POINTWISE if point_format <= 5 else _LAYERED
+    if compressor not in compressors:
+        raise InputError(
+            where,
+            f"laszip VLR compressor = {compressor} is not LASzip's for point format "
+            f"{point_format} ({' or '.join(map(str, compressors))})",
+        )
+    if coder != 0:
+        raise InputError(where, f"laszip VLR coder = {coder} is not LASzip's (0, arithmetic)")
+    items = list(_LASZIP_ITEMS[point_format])
+    base = sum(size for _, size in items)
+    if record > base:
+        items.append((extra, record - base))
+    for i in range(max(n_items, len(items))):  # a loop over a few items
+        got = struct.unpack_from("<HHH", laszip, _LASZIP_FIXED + 6 * i) if i < n_items else None
+        want = items[i] if i < len(items) else None
+        if got is not None and want is not None and got[:2] == want and got[2] in versions:
+            continue
+        needs = (
+            f"type {want[0]} ({want[1]} bytes, version {' or '.join(map(str, versions))})"
+            if want is not None
+            else "no more items"
+        )
+        name = f"laszip VLR item {i + 1}"
+        value = "missing" if got is None else f"type {got[0]} ({got[1]} bytes, version {got[2]})"
+        raise InputError(
+            where,
+            f"{name} = {value}: point format {point_format} of {record}-byte records needs "
+            f"{needs} there",
+        )
+    most = max(count, _LAZ_MAX_CHUNK)
+    fixed = compressor in _CHUNKED and chunk_size != _VARIABLE_CHUNKS
+    if fixed and not 1 <= chunk_size <= most:
+        raise InputError(
+            where,
+            f"laszip VLR chunk size = {chunk_size} points makes no sense: a chunk holds 1 to "
+            f"{most:,} points (the file has {count:,})",
         )
 
 
