@@ -25,7 +25,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
-from scan2terrain.readers import _ply_kernels
 from scan2terrain.readers._cloud_common import (
     XYZ,
     Decoded,
@@ -303,6 +302,8 @@ def _walk_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Ele
     """Every row of every element inside the data, each list count of its type and >= 0, and
     the rows ending where the data does (but for white space), before RPly reads them: it reads
     rows past a wrong count as other rows, or keeps those it could not read uninitialised."""
+    from scan2terrain.readers import _ply_kernels  # numba: only for rows of varying length
+
     data = np.frombuffer(raw, np.uint8)
     pos = start
     for element in elements:
@@ -336,6 +337,8 @@ def _walk_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Ele
 def _stop(element: _Element, raw: bytes, stop: tuple[int, int, int, int, int]) -> str:
     """Why the walk of ``element`` over ``raw`` stopped (a walk's ``(status, row, prop, pos,
     count)``), in words."""
+    from scan2terrain.readers import _ply_kernels
+
     status, row, prop, pos, count = stop
     name = element.props[prop][0]
     where = f"row {row} of element {element.name}"
