@@ -171,6 +171,29 @@ QUOTED: dict[str, tuple[Path, Callable[[bytes], bytes], tuple[str, ...]]] = {
     "bytecount-short": (MOON, tag(279, "<I", 4000), ("StripByteCounts[0] = 4000", "4356")),
     # float32 elevations read as int32: a billion metres.
     "sampleformat-int": (MOON, tag(339, "<H", 2), ("elevation", "100000 m")),
+    # Found by sweeping every numeric field (not quoted): a numpy warning before the refusal
+    # (two lines), a division by zero (exit 1) and a world of size 0 on a sphere of 1e-300 m.
+    "pixelscale-inf": (MOON, tag(PIXEL_SCALE, "<d", math.inf), ("ModelPixelScale = (inf, ",)),
+    "sfbay-semimajor-denormal": (
+        SFBAY,
+        tag(34736, "<d", 5e-324, index=1),
+        ("GeogSemiMajorAxisGeoKey = 4.94066e-324 m", "10..1e+08 m"),
+    ),
+    "sfbay-semimajor-tiny": (
+        SFBAY,
+        tag(34736, "<d", 1e-300, index=1),
+        ("GeogSemiMajorAxisGeoKey = 1e-300 m",),
+    ),
+    "sfbay-semimajor-negative": (
+        SFBAY,
+        tag(34736, "<d", -6378137.0, index=1),
+        ("GeogSemiMajorAxisGeoKey = -6.37814e+06 m",),
+    ),
+    "sfbay-inverse-flattening-tiny": (
+        SFBAY,
+        both(tag(34736, "<d", 1e-300), tag(34736, "<d", 1737400.0, index=1)),
+        ("semi-minor axis (from GeogInvFlatteningGeoKey = 1e-300) = ",),
+    ),
 }
 
 
@@ -428,3 +451,66 @@ def _problems(o: Outcome, source: Path) -> list[str]:
     if any("encountered" in line for line in lines):  # numpy's floating-point warnings
         return [f"warnings: {lines}"]
     return insane(source.parent / "out")
+
+
+# --- every numeric field at its extremes (slow: CI) -------------------------------------------
+
+_FORMATS = {1: "<B", 3: "<H", 4: "<I", 11: "<f", 12: "<d", 16: "<Q", 6: "<b", 8: "<h", 9: "<i"}
+_FLOATS = {
+    "zero": 0.0,
+    "denormal": 5e-324,
+    "tiny": 1e-300,
+    "huge": 1e300,
+    "neghuge": -1e300,
+    "nan": math.nan,
+    "inf": math.inf,
+    "minus1": -1.0,
+}
+
+
+def field_extremes(data: bytes) -> list[tuple[str, bytes]]:
+    """Copies with one value of one numeric tag (its first, second, fourth, fifth and last)
+    set to 0, 1, 2, half and all of its type's range (integers) or 0, a denormal, 1e-300,
+    +-1e300, NaN, infinity and -1 (floats)."""
+    out = []
+    for code, entry in entries(data).items():
+        kind, count = struct.unpack_from("<HI", data, entry + 2)
+        if kind not in _FORMATS:
+            continue
+        fmt = _FORMATS[kind]
+        step = struct.calcsize(fmt)
+        at = values_at(data, code)
+        if fmt in ("<f", "<d"):
+            values: dict[str, float] = _FLOATS
+        else:
+            signed = fmt[1].islower()  # b, h, i
+            top = (1 << (8 * step - signed)) - 1
+            values = {"zero": 0, "one": 1, "two": 2, "half": top // 2, "max": top}
+        for index in sorted({0, 1, 3, 4, count - 1} & set(range(count))):
+            for name, value in values.items():
+                out.append((f"{code}-{index}-{name}", put(data, at + index * step, fmt, value)))
+    return out
+
+
+@pytest.mark.slow
+def test_every_numeric_field_at_its_extremes_refuses_or_gives_a_sane_world(
+    tmp_path: Path,
+) -> None:
+    """About 380 runs, 45 s on two cores. Found: an infinite pixel scale warned before its
+    refusal (two lines), an ellipsoid's semi-major axis of 5e-324 m divided by zero (exit 1)
+    and one of 1e-300 m made a world of size 0."""
+    cases, sources = [], {}
+    for fixture in (MOON, SFBAY):
+        for name, data in field_extremes(fixture.read_bytes()):
+            label = f"{fixture.stem}-{name}"
+            folder = tmp_path / label
+            folder.mkdir()
+            source = folder / f"{label}.tif"
+            source.write_bytes(data)
+            sources[label] = source
+            argv = ["dem2world", str(source), "-o", str(folder / "out"), "-q"]
+            cases.append(Case(label, argv, str(folder)))
+    outcomes = run_cases(cases, limit_bytes=3 << 30, workdir=tmp_path / "_runner", timeout_s=60)
+    problems = [f"{o.name}: {p}" for o in outcomes for p in _problems(o, sources[o.name])]
+    assert not problems, "\n".join(problems)
+    assert sum(o.exit == 2 for o in outcomes) > len(cases) // 3

@@ -41,10 +41,12 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._limits import (
+    MAX_BODY_RADIUS_M,
     MAX_COORDINATE_M,
     MAX_ELEVATION_M,
     MAX_SPACING_DEG,
     MAX_SPACING_M,
+    MIN_BODY_RADIUS_M,
     MIN_SPACING_DEG,
     MIN_SPACING_M,
     exact_after_scaling,
@@ -444,7 +446,7 @@ def _to_dem(
     radius = None
     if crs == "geographic":
         uname, per_unit = angular_unit(path, keys)
-        radius = _radius(keys, notes)
+        radius = _radius(path, keys, notes)
         _check_placement(
             path, (georef, tie), (west, south), (sx, sy), (rows, cols),
             degrees=per_unit / math.radians(1), reach=MAX_COORDINATE_M / radius / math.radians(1),
@@ -576,18 +578,39 @@ def _as_sample(value: float, dtype: np.dtype[Any]) -> float | None:
     return float(value)
 
 
-def _radius(keys: dict[int, int | float | str], notes: list[str]) -> float:
-    """The Earth's mean radius, or another body's mean radius (2a + b) / 3 from the GeoKeys."""
+def _radius(path: Path, keys: dict[int, int | float | str], notes: list[str]) -> float:
+    """The Earth's mean radius, or another body's mean radius (2a + b) / 3 from the GeoKeys;
+    semi-axes that make no sense for a body (0, negative, 1e-300 m: a world of size 0) are
+    refused."""
     a = keys.get(KEY_SEMI_MAJOR)
-    if not isinstance(a, (int, float)) or a <= 0 or abs(a - _EARTH_A) <= 0.01 * _EARTH_A:
+    if not isinstance(a, (int, float)):
+        return EARTH_RADIUS
+    a = _semi_axis(path, "GeogSemiMajorAxisGeoKey", float(a))
+    if abs(a - _EARTH_A) <= 0.01 * _EARTH_A:
         return EARTH_RADIUS
     b = keys.get(KEY_SEMI_MINOR)
     inv_f = keys.get(KEY_INV_FLATTENING)
-    if not isinstance(b, (int, float)) or b <= 0:
-        b = a * (1 - 1 / inv_f) if isinstance(inv_f, (int, float)) and inv_f > 0 else a
-    radius = (2 * float(a) + float(b)) / 3
+    if isinstance(b, (int, float)):
+        b = _semi_axis(path, "GeogSemiMinorAxisGeoKey", float(b))
+    elif isinstance(inv_f, (int, float)) and inv_f > 0:
+        field = f"semi-minor axis (from GeogInvFlatteningGeoKey = {inv_f:.6g})"
+        b = _semi_axis(path, field, a * (1 - 1 / inv_f))
+    else:
+        b = a
+    radius = (2 * a + b) / 3
     notes.append(f"not the Earth: sphere of radius {radius:.1f} m from the CRS's ellipsoid")
     return radius
+
+
+def _semi_axis(path: Path, field: str, value: float) -> float:
+    """``value`` when it is a body's semi-axis in metres (see :data:`MIN_BODY_RADIUS_M`)."""
+    if not value > 0:
+        raise InputError(
+            path,
+            f"{field} = {value:.6g} m makes no sense: a body's semi-axis is a positive length "
+            f"({MIN_BODY_RADIUS_M:g}..{MAX_BODY_RADIUS_M:g} m)",
+        )
+    return within(path, field, value, lo=MIN_BODY_RADIUS_M, hi=MAX_BODY_RADIUS_M, unit="m")
 
 
 def haversine(lat_a: float, lon_a: float, lat_b: float, lon_b: float, radius: float) -> float:

@@ -611,6 +611,10 @@ def geotransform(
         t = _numbers(path, tags, TAG_TIEPOINT, "ModelTiepoint")
         if s.size < 2 or t.size < 6:
             raise InputError(path, "ModelPixelScale/ModelTiepoint tags are too short")
+        for name, values in (("ModelPixelScale", s[:3]), ("ModelTiepoint", t[:6])):
+            if not np.isfinite(values).all():
+                shown = ", ".join(f"{v:.6g}" for v in values)
+                raise InputError(path, f"{name} = ({shown}) holds a non-finite number")
         if t.size > 6:
             raise InputError(
                 path,
