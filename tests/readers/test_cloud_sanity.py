@@ -369,3 +369,157 @@ def test_flipped_laszip_vlr_bytes_are_read_or_refused_never_a_signal(
             assert (Path(o.argv[3]) / "scan2terrain.yaml").is_file(), o.describe()
     # Both ends are met (the seeds are fixed): harmless fields read, the rest refused.
     assert set(ends.values()) == {0, 2}, ends
+
+
+# --- CSV/XYZ and PCD: the coordinates themselves --------------------------------------------
+
+AUTZEN_CSV = CLOUDS / "pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"
+STREET_XYZ = CLOUDS / "pc_xyz_street_lidar/multisensor_lidar.xyz"
+PCD_HEAD = (
+    "# .PCD v0.7\nVERSION 0.7\nFIELDS {f}\nSIZE {s}\nTYPE {t}\nCOUNT 1 1 1\nWIDTH {n}\n"
+    "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {d}\n"
+)
+
+
+def _text_with(src: Path, dst: Path, line: int, column: int, value: str) -> Path:
+    """``src`` with the number in ``column`` (0-based) of ``line`` (1-based) replaced."""
+    lines = src.read_text().splitlines()
+    sep = "," if "," in lines[line - 1] else " "
+    cells = lines[line - 1].split(sep)
+    cells[column] = value
+    lines[line - 1] = sep.join(cells)
+    dst.write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def _pcd_binary(path: Path, xyz: np.ndarray, code: str, data: str = "binary") -> Path:
+    rec = np.ascontiguousarray(xyz, dtype=f"<{code}")
+    size = rec.dtype.itemsize
+    head = PCD_HEAD.format(f="x y z", s=f"{size} {size} {size}", t="F F F", n=len(rec), d=data)
+    path.write_bytes(head.encode() + rec.tobytes())
+    return path
+
+
+def _pcd_compressed(path: Path, xyz: np.ndarray) -> Path:
+    import open3d
+
+    cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(xyz))
+    assert open3d.io.write_point_cloud(path, cloud, write_ascii=False, compressed=True)
+    assert b"DATA binary_compressed" in path.read_bytes()[:400]
+    return path
+
+
+#: A small scene, metres, and the same with one number made absurd.
+SCENE = np.array([[0.0, 0.0, 0.0], [1.5, -2.0, 0.25], [3.0, 1.0, 2.0], [-4.0, 2.5, 1.0]])
+
+
+def _scene_with(row: int, axis: int, value: float) -> np.ndarray:
+    xyz: np.ndarray = SCENE.copy()
+    xyz[row, axis] = value
+    return xyz
+
+
+#: name -> (how the input is made, the field and value of its refusal).
+TEXT_AND_PCD: dict[str, tuple[Callable[[Path], Path], str]] = {
+    # 106 points of Autzen as CSV with a quoted header: data row 5 is line 6, X column 2.
+    "csv-x-1e300": (
+        lambda t: _text_with(AUTZEN_CSV, t / "x300.txt", 6, 2, "1e300"),
+        "line 6: x = 1e+300 m",
+    ),
+    "csv-z-denormal": (
+        lambda t: _text_with(AUTZEN_CSV, t / "zden.txt", 10, 5, "4.9e-324"),
+        "line 10: z = 4.94066e-324 m",
+    ),
+    "csv-y--1e17": (
+        lambda t: _text_with(AUTZEN_CSV, t / "y17.txt", 107, 3, "-1e17"),
+        "line 107: y = -1e+17 m",
+    ),
+    "xyz-y-1e17": (
+        lambda t: _text_with(STREET_XYZ, t / "y17.xyz", 3, 1, "1e17"),
+        "line 3: y = 1e+17 m",
+    ),
+    "xyz-x-1e-300": (
+        lambda t: _text_with(STREET_XYZ, t / "x-300.xyz", 33656, 0, "1e-300"),
+        "line 33656: x = 1e-300 m",
+    ),
+    "xyz-comments": (  # lines are the file's, comments and blank lines counted
+        lambda t: _write(t / "c.xyz", "# a comment\n\n1 2 3\n# another\n\n4 2e9 6\n"),
+        "line 6: y = 2e+09 m",
+    ),
+    "pcd-ascii-1e300": (
+        lambda t: _write(
+            t / "a.pcd",
+            PCD_HEAD.format(f="x y z", s="4 4 4", t="F F F", n=3, d="ascii")
+            + "1 2 3\nnan nan nan\n1e300 0 0\n",
+        ),
+        "line 14: x = 1e+300 m",
+    ),
+    "pcd-binary-f8-1e17": (
+        lambda t: _pcd_binary(t / "b8.pcd", _scene_with(2, 0, 1e17), "f8"),
+        "point 2: x = 1e+17 m",
+    ),
+    "pcd-binary-f4-denormal": (
+        lambda t: _pcd_binary(t / "b4.pcd", _scene_with(1, 1, 1e-40), "f4"),
+        "point 1: y = 9.99995e-41 m",
+    ),
+    "pcd-compressed-5e9": (
+        lambda t: _pcd_compressed(t / "c.pcd", _scene_with(3, 2, 5e9)),
+        "point 3: z = 5e+09 m",
+    ),
+}
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def text_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Outcome]]:
+    tmp = tmp_path_factory.mktemp("text")
+    world = ["cloud2world", "{in}", "-o", "{out}", *WORLD]
+    inputs: dict[str, tuple[Path, list[str]]] = {}
+    for name, (make, _) in TEXT_AND_PCD.items():
+        src = make(tmp)
+        inputs[name] = (src, world)
+        inputs[f"{name} --stream"] = (src, [*world, "--stream"])
+    return _run(tmp, inputs)
+
+
+@pytest.mark.parametrize("case", list(TEXT_AND_PCD))
+def test_text_and_pcd_coordinates_beyond_the_physical_world_are_refused(
+    text_runs: dict[str, tuple[Path, Outcome]], case: str
+) -> None:
+    """A coordinate of 1e300, 1e17 or 2e9 m, or a denormal: the line (text) or point (binary),
+    the axis and the value, the same on both paths."""
+    src, default = text_runs[case]
+    _, streamed = text_runs[f"{case} --stream"]
+    line = one_line(default, src)
+    field = TEXT_AND_PCD[case][1]
+    assert line.startswith(f"scan2terrain: error: {src}: {field} makes no sense"), line
+    assert one_line(streamed, src) == line
+
+
+def test_coordinates_within_the_limits_and_no_return_marks_are_read(tmp_path: Path) -> None:
+    """0, the limits themselves and the smallest normal float32 are coordinates; NaN and inf
+    are the formats' no-return marks (PCL's organised clouds), dropped as before."""
+    from scan2terrain.readers._limits import MIN_COORDINATE_M
+    from scan2terrain.readers.cloudfile import read_cloud
+
+    edge = np.array(
+        [[0.0, -0.0, MAX_COORDINATE_M], [-MAX_COORDINATE_M, MIN_COORDINATE_M, 1.0],
+         [np.nan, 1.0, 2.0], [1.0, np.inf, 2.0]]
+    )  # fmt: skip
+    text = "\n".join(" ".join(repr(float(v)) for v in row) for row in edge) + "\n"
+    for path in (
+        _write(tmp_path / "e.xyz", text),
+        _write(tmp_path / "e.csv", "x,y,z\n" + text.replace(" ", ",")),
+        _pcd_binary(tmp_path / "e8.pcd", edge, "f8"),
+        _write(
+            tmp_path / "ea.pcd",
+            PCD_HEAD.format(f="x y z", s="8 8 8", t="F F F", n=4, d="ascii") + text,
+        ),
+    ):
+        np.testing.assert_array_equal(read_cloud(path).points, edge[:2], err_msg=str(path))
+    office = read_cloud(CLOUDS / "pc_pcl_office1_organized/office1.pcd")  # NaN: no return
+    assert office.records > len(office.points) > 0

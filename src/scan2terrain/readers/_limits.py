@@ -23,6 +23,9 @@ MIN_SPACING_DEG, MAX_SPACING_DEG = 1e-11, 1.0
 #: A coordinate's distance from its CRS origin, metres: a projected CRS spans under 1e8 m, the
 #: Earth's geocentric coordinates stay under 7e6 m.
 MAX_COORDINATE_M = 1e9
+#: The smallest size of a coordinate other than 0, metres: float32's smallest normal number. A
+#: point nearer to 0 is no measurement but a damaged number (a denormal, a text's 1e-300).
+MIN_COORDINATE_M = 1.1754943508222875e-38
 #: Elevations, metres from the datum, either sign: what a planet has (Olympus Mons is 22 km
 #: high; the deepest trench 11 km deep). dem2world's ``--max-elevation`` widens it.
 MAX_ELEVATION_M = 1e5

@@ -42,6 +42,7 @@ from scan2terrain.readers._cloud_common import (
     open3d_points,
     stack,
 )
+from scan2terrain.readers._coordinates import check_coordinates, data_line
 
 _PCD_TYPES = {
     ("F", 4): "f4",
@@ -161,6 +162,12 @@ def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> 
         if len(table) != n:
             cut = "truncated: " if len(table) < n else ""
             raise InputError(path, f"{cut}PCD header says {n} points, the data has {len(table)}")
+        first = raw[:start].count(b"\n") + 1  # the data's first line
+
+        def line(row: int) -> str:
+            return f"line {data_line(io.StringIO(text), 0, row, first)}"
+
+        check_coordinates(path, table[:, :3], line)
         packed = None if rgb is None else _ascii_packed(table[:, 3])
         values = {}
         with np.errstate(invalid="ignore", over="ignore"):
@@ -172,9 +179,11 @@ def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> 
         need_bytes(path, len(raw), start + n * step, f"{n} points of {step} bytes")
         dtype = np.dtype({"names": fields, "formats": formats, "offsets": at, "itemsize": step})
         rec = np.frombuffer(raw, dtype=dtype, count=n, offset=start)
+        points = stack(rec)
+        check_coordinates(path, points, _point)
         packed = None if rgb is None else rec[rgb]
         values = {k: rec[f].astype(rec[f].dtype.newbyteorder("=")) for k, f in extra.items()}
-        return _decoded(stack(rec), packed, rgb, fmt, colours, values, unread, before)
+        return _decoded(points, packed, rgb, fmt, colours, values, unread, before)
     if kind == "binary_compressed":
         need_bytes(path, len(raw), start + 8, "the compressed block's sizes")
         packed_size, unpacked = (
@@ -192,15 +201,22 @@ def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> 
         with _lower_case_fields(path, raw, start, names, used) as source:
             try:
                 if attributes:
-                    return _open3d_decoded(path, source, n, colours, names, extra, unread, before)
+                    found = _open3d_decoded(path, source, n, colours, names, extra, unread, before)
+                    check_coordinates(path, found.points, _point)
+                    return found
                 pts, got = open3d_points(source, n, colours=colours and rgb is not None)
             except InputError as exc:
                 raise InputError(path, exc.problem) from exc
+        check_coordinates(path, pts, _point)
         colour = None  # Open3D unpacks the field into bytes / 255
         if got is not None:
             colour = np.clip(np.rint(got), 0, 255).astype(np.uint8)
         return Decoded(pts, colour, fmt)
     raise InputError(path, f"PCD header: unknown DATA {' '.join(head['DATA'])!r}")
+
+
+def _point(row: int) -> str:
+    return f"point {row}"
 
 
 def _decoded(  # noqa: PLR0917 - one private call site per DATA kind

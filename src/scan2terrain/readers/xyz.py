@@ -32,6 +32,7 @@ from scan2terrain.readers._cloud_common import (
     narrowed,
     rgb8,
 )
+from scan2terrain.readers._coordinates import check_coordinates, data_line
 
 TEXT_SUFFIXES = (".xyz", ".xyzn", ".xyzrgb", ".pts", ".txt", ".csv")
 #: Header names of the colour columns, either set.
@@ -116,6 +117,7 @@ def read_text(
     if expected is not None and len(table) != expected:
         raise InputError(path, f"the .pts file says {expected} points, has {len(table)}")
     points = np.ascontiguousarray(table[:, :3])
+    check_coordinates(path, points, lambda row: f"line {data_line(path, skip, row)}")
     colour = None
     attrs: dict[str, NDArray[Any]] = {}
     if rgb:
