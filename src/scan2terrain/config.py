@@ -553,6 +553,14 @@ class Config:
             w = dataclasses.replace(w, wall_faces="hits" if scans else "cells")
         return self if w == self.world else dataclasses.replace(self, world=w)
 
+    def for_insert(self, default: Literal["raycast", "endpoints"]) -> Config:
+        """This config with ``scans.insert: auto`` resolved to the command's ``default``
+        (raycast for bags, endpoints for cloud files and for streaming, which inserts end
+        points only), so the effective config says how the scans went in."""
+        if self.scans.insert != "auto":
+            return self
+        return dataclasses.replace(self, scans=dataclasses.replace(self.scans, insert=default))
+
 
 #: Ranges of settings whose absurd values would exhaust memory or lose all precision.
 MAX_FILTER = 99  #: filter window side, cells

@@ -85,6 +85,7 @@ def bag2world(
 
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
+    cfg = cfg.for_insert("endpoints" if streaming(cfg) else "raycast")
     if streaming(cfg):
         from scan2terrain.commands import stream
 
@@ -377,6 +378,7 @@ def cloud2world(
 
     refuse_existing(out, overwrite, tuple(files))
     grid_options(cfg)
+    cfg = cfg.for_insert("endpoints")
     from scan2terrain.readers.crs import georeferenced, parse_crs
     from scan2terrain.readers.las import is_url, url_path
 
