@@ -1,7 +1,9 @@
 """The picture DESIGN.md draws holds in the code: no import circle between scan2terrain modules
 (function-local and type-checking imports count: a circle hidden in a function is still one),
-and a stage never imports a later one (readers -> octree -> grids -> filters -> geometry ->
-replay -> exporters; types, errors, config and fileio are shared below all of them)."""
+a stage never imports a later one (readers -> slam -> octree -> grids -> filters -> geometry ->
+replay -> exporters), the shared modules (types, errors, config, fileio, _numba) import no stage
+and no composer, and every module is in one layer: shared, a stage, or a composer (world/,
+steps.py and checks.py below commands/, below cli/)."""
 
 from __future__ import annotations
 
@@ -10,7 +12,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
 STAGES = ["readers", "slam", "octree", "grids", "filters", "geometry", "replay", "exporters"]
-COMPOSERS = {"commands", "cli", "steps", "world"}
+COMPOSERS = {"commands", "cli", "steps", "world", "checks", "warmup"}
+SHARED = {"types", "errors", "config", "fileio", "_numba"}
+#: Composers, lowest first: each imports only shared modules, stages and lower composers.
+LAYERS = [{"world"}, {"steps", "checks"}, {"commands"}, {"cli", "warmup", "__main__"}]
 
 
 def module_name(path: Path) -> str:
@@ -75,4 +80,32 @@ def test_stages_import_only_earlier_stages() -> None:
             top = target.split(".")[1] if target.count(".") else ""
             if top in COMPOSERS or (other and STAGES.index(other) > STAGES.index(stage)):
                 wrong.append(f"{module} imports {target}")
+    assert wrong == [], "\n".join(sorted(wrong))
+
+
+def layer_of(module: str) -> str:
+    """'shared', a stage's name, or the composer's top-level name ('' for the package)."""
+    parts = module.split(".")
+    top = parts[1] if len(parts) > 1 else ""
+    if top in SHARED or top == "":
+        return "shared"
+    return top
+
+
+def test_every_module_has_a_layer_and_imports_only_below_it() -> None:
+    composers = [name for group in LAYERS for name in group]
+    rank = {name: i for i, group in enumerate(LAYERS) for name in group}
+    wrong, unplaced = [], []
+    for module, targets in imports().items():
+        layer = layer_of(module)
+        if layer != "shared" and layer not in STAGES and layer not in composers:
+            unplaced.append(module)
+            continue
+        for target in targets:
+            other = layer_of(target)
+            if layer == "shared" and other != "shared":
+                wrong.append(f"{module} (shared) imports {target}")
+            elif layer in rank and other in rank and rank[other] > rank[layer]:
+                wrong.append(f"{module} imports {target}, a composer above it")
+    assert unplaced == [], unplaced
     assert wrong == [], "\n".join(sorted(wrong))

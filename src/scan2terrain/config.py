@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from scan2terrain.errors import ConfigError
-from scan2terrain.filters.registry import FILTERS as _FILTER_REGISTRY
 
 # The option vocabulary, declared once: the config fields are typed with these, the CLI takes
 # its ``choices=`` from them, and :meth:`Config.validate` checks every field typed with one.
@@ -35,9 +34,10 @@ CorrectMode = Literal["auto", "on", "off"]
 LocalOrigin = Literal["auto", "none"]
 BitDepth = Literal[8, 16]
 
-#: Filter kinds: 'none' and the names of filters.registry.FILTERS (adding a filter there adds
-#: it here, to the CLI's choices and to validation).
-FILTERS: tuple[str, ...] = ("none", *_FILTER_REGISTRY)
+#: Filter kinds: 'none' and a name of filters.registry.FILTERS, which holds each one's code and
+#: help (the registry checks at import that it implements exactly these).
+FilterKind = Literal["none", "median", "majority", "paper", "thin_wall"]
+FILTERS: tuple[FilterKind, ...] = get_args(FilterKind)
 UNKNOWN_POLICIES: tuple[UnknownPolicy, ...] = get_args(UnknownPolicy)
 SIMULATORS: tuple[Simulator, ...] = get_args(Simulator)
 GEOMETRIES: tuple[Geometry, ...] = get_args(Geometry)
@@ -77,7 +77,7 @@ class FilterConfig:
     enabled: bool = True
     #: none, or a name in filters.registry.FILTERS: median | majority | paper (the paper's
     #: modified median) | thin_wall (also diagonals)
-    kind: str = "thin_wall"
+    kind: FilterKind = "thin_wall"
     #: Window side for median/majority (odd, >= 3); paper/thin_wall always use 3x3.
     size: int = 3
     #: Remove occupied specks of fewer cells than this (8-connected) after filtering; 0 = off.

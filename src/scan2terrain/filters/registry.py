@@ -14,6 +14,9 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, TypeVar
 
+from scan2terrain.config import FILTERS as FILTER_KINDS
+from scan2terrain.config import FilterKind
+
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
@@ -36,7 +39,7 @@ class Filter:
         return out
 
 
-FILTERS: dict[str, Filter] = {
+FILTERS: dict[FilterKind, Filter] = {
     "median": Filter("median:median_filter", True, "the plain median of the window"),
     "majority": Filter("majority:majority_filter", True, "the most frequent value of the window"),
     "paper": Filter(
@@ -50,9 +53,13 @@ FILTERS: dict[str, Filter] = {
         "the paper's filter also keeping diagonal runs (3x3; thin walls survive)",
     ),
 }
+if set(FILTERS) != set(FILTER_KINDS) - {"none"}:  # config.FilterKind names them; one list each
+    raise ImportError(f"filters.registry implements {sorted(FILTERS)}, config names {FILTER_KINDS}")
 
 
-def run_filter(a: NDArray[ScalarT], kind: str, size: int, fallback: Fallback) -> NDArray[ScalarT]:
+def run_filter(
+    a: NDArray[ScalarT], kind: FilterKind, size: int, fallback: Fallback
+) -> NDArray[ScalarT]:
     """``a`` filtered by the filter named ``kind`` ('none': ``a`` itself): same shape, dtype."""
     if kind == "none":
         return a
