@@ -523,3 +523,34 @@ def test_coordinates_within_the_limits_and_no_return_marks_are_read(tmp_path: Pa
         np.testing.assert_array_equal(read_cloud(path).points, edge[:2], err_msg=str(path))
     office = read_cloud(CLOUDS / "pc_pcl_office1_organized/office1.pcd")  # NaN: no return
     assert office.records > len(office.points) > 0
+
+
+# --- a fixture CSV at the default resolution --------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        [],
+        ["--geometry", "voxels"],  # 20 s in a 4e9-cell numpy allocation, then exit 1
+        ["--stream"],
+    ],
+)
+def test_a_survey_csv_at_the_default_resolution_is_refused_quickly(
+    tmp_path: Path, extra: list[str]
+) -> None:
+    """Autzen's 106 points span 3.2 x 4.4 km: at 0.05 m (the default resolution, given) that
+    is 65,000 x 88,000 cells, over max_pixels; refused by the cell budget before a grid of them
+    is allocated, on every geometry and path."""
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = ["cloud2world", str(AUTZEN_CSV), "-o", str(out / "o"), *WORLD, "--resolution", "0.05"]
+    (o,) = run_cases(
+        [Case("csv", [*argv, *extra], str(out))],
+        limit_bytes=LIMIT_BYTES,
+        timeout_s=TIMEOUT_S,
+        workdir=tmp_path / "_r",
+    )
+    line = one_line(o, AUTZEN_CSV)
+    assert re.search(r"span 64966 x \d+ cells of 0.05 m, over --max-pixels 268435456", line), line
+    assert o.seconds < 10, o.describe()

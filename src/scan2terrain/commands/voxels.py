@@ -151,6 +151,10 @@ def voxels_folder(
         extra[f"occupied_voxels.{o.points}"] = points_bytes(
             key_to_coord(solid, resolution), f".{o.points}"
         )
+    # Size the grid before allocating it (its columns span the keys' x and y range): a voxel
+    # world's map is that grid too (it allocated 4e9 cells for a survey at 0.05 m, then failed).
+    span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
+    refuse_large_grid(source, "voxels", int(span[1]), int(span[0]), resolution=resolution, cfg=cfg)
     if cfg.world.geometry == "voxels":
         from scan2terrain.world.voxels import voxel_mesh_folder
 
@@ -160,9 +164,6 @@ def voxels_folder(
         ).with_extra(extra)  # fmt: skip
     z_min = -math.inf if o.z_min is None else o.z_min
     z_max = math.inf if o.z_max is None else o.z_max
-    # Size the grid before allocating it (its columns span the keys' x and y range).
-    span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
-    refuse_large_grid(source, "voxels", int(span[1]), int(span[0]), resolution=resolution, cfg=cfg)
     if o.grid == "occupancy":
         grid = projection.project_occupancy(
             keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs
