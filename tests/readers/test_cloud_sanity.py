@@ -13,6 +13,7 @@ children under an address-space limit: an abort is reported as a signal, not pyt
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import struct
@@ -554,3 +555,63 @@ def test_a_survey_csv_at_the_default_resolution_is_refused_quickly(
     line = one_line(o, AUTZEN_CSV)
     assert re.search(r"span 64966 x \d+ cells of 0.05 m, over --max-pixels 268435456", line), line
     assert o.seconds < 10, o.describe()
+
+
+# --- LAZ of variable-size chunks (COPC's) on the streamed path -------------------------------
+
+
+def _variable_chunk_laz(path: Path, sizes: tuple[int, ...] = (400, 300, 365)) -> Path:
+    """simple.laz's points compressed again by lazrs in chunks of ``sizes`` points (a chunk
+    size of 2^32 - 1 in the laszip VLR: the chunk table holds each chunk's point count)."""
+    import io
+
+    import laspy
+    import lazrs  # type: ignore[import-untyped]
+
+    src = SIMPLE_LAZ.read_bytes()
+    raw = laspy.read(SIMPLE_LAZ).points.array.tobytes()
+    record = len(raw) // sum(sizes)
+    vlr = lazrs.LazVlr.new_for_compression(3, 0, True)
+    out = io.BytesIO()
+    compressor = lazrs.LasZipCompressor(out, vlr)
+    bounds = np.cumsum((0, *sizes)) * record
+    compressor.compress_chunks([raw[a:b] for a, b in itertools.pairwise(bounds)])
+    compressor.done()
+    data = out.getvalue()
+    start = struct.unpack_from("<I", src, 96)[0]
+    table = struct.unpack_from("<q", data, 0)[0] + start  # its offset, from the file's start
+    head = bytearray(src[:start])
+    payload = _laszip_payload(src)
+    head[payload : payload + 52] = bytes(vlr.record_data())
+    path.write_bytes(bytes(head) + struct.pack("<q", table) + data[8:])
+    return path
+
+
+def test_a_laz_of_variable_size_chunks_streams_the_points_it_holds(tmp_path: Path) -> None:
+    """lazrs seeks into such a file wrongly (zeros or other points: it takes a point's place
+    in its chunk as its index modulo 2^32 - 1): a piece read from point 500 held zeros, which
+    widened the grid to 639,000 x 851,000 cells. Read from the start now, and planned as one
+    piece: the same world as the default path."""
+    from scan2terrain.readers.cloudfile import read_cloud
+    from scan2terrain.readers.las import iter_las, las_info
+
+    path = _variable_chunk_laz(tmp_path / "variable.laz")
+    points = read_cloud(path).points
+    np.testing.assert_array_equal(points, read_cloud(SIMPLE_LAZ).points)
+    assert las_info(path).variable_chunks and not las_info(SIMPLE_LAZ).variable_chunks
+    for start in (100, 400, 500, 1000):
+        got = np.concatenate(list(iter_las(path, start=start, count=50, step=17)))
+        np.testing.assert_array_equal(got, points[start : start + 50])
+    outs = {}
+    for name, extra in (("default", []), ("stream", ["--stream", "--chunk-points", "100"])):
+        out = tmp_path / name
+        argv = ["cloud2world", str(path), "-o", str(out), *WORLD, "--resolution", "1", *extra]
+        (o,) = run_cases([Case(name, argv, str(tmp_path))], limit_bytes=LIMIT_BYTES,
+                         timeout_s=TIMEOUT_S, workdir=tmp_path / f"_{name}")  # fmt: skip
+        assert o.exit == 0, o.describe()
+        outs[name] = {
+            str(p.relative_to(out)): p.read_bytes()
+            for p in out.rglob("*")
+            if p.is_file() and p.name not in ("scan2terrain.yaml", "octree.bt")
+        }
+    assert outs["stream"] == outs["default"]

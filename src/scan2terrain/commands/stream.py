@@ -178,11 +178,11 @@ def plan_clouds(
             info = las_info(path)
             if info.points == 0:
                 raise InputError(path, "no point in the cloud (the header says 0)")
+            # A LAZ of variable-size chunks (COPC) is read from its start only: one piece.
+            piece = info.points if info.variable_chunks else per_task
             chunks += [
-                CloudChunk(
-                    str(path), s, min(per_task, info.points - s), min(per_task, info.points - s)
-                )
-                for s in range(0, info.points, per_task)
+                CloudChunk(str(path), s, min(piece, info.points - s), min(piece, info.points - s))
+                for s in range(0, info.points, piece)
             ]
             lo = np.minimum(lo, info.mins)
             hi = np.maximum(hi, info.maxs)

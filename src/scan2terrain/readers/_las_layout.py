@@ -76,9 +76,12 @@ _LAYERED = ((3,), (3, 4), 14)
 
 def check_las_layout(
     f: BinaryIO, size: int, where: Path | str, *, decode: tuple[int, int | None] | None
-) -> None:
+) -> bool:
     """Refuse a LAS/LAZ file whose header counts and offsets (and LAZ chunk table) do not fit
     in its ``size`` bytes, reading a few raw bytes from ``f`` (left at an arbitrary position).
+    True for a LAZ file of variable-size chunks (COPC's), which lazrs cannot seek into: it
+    takes a point's place in its chunk as its index modulo the chunk size, 2^32 - 1 there
+    (laz-rs 0.12, ParLasZipDecompressor.seek), and read other points or zeros.
 
     Done before laspy reads the header (it reads VLRs and EVLRs by the header's counts and
     lengths) and before lazrs decodes (it allocates the chunk table by its count: 2^32 chunks
@@ -88,7 +91,7 @@ def check_las_layout(
     """
     head = _read_at(f, 0, _LAS14_HEADER)
     if len(head) < _LAS_HEADER_MIN or not head.startswith(b"LASF"):
-        return
+        return False
     header_size, start, n_vlrs, format_id, record, count = struct.unpack_from("<HIIBHI", head, 94)
     _check_scales(head, where)
     first_evlr = n_evlrs = 0
@@ -115,7 +118,7 @@ def check_las_layout(
                 f"truncated LAS file: {count} points of {record} bytes need {need} bytes, "
                 f"the file has {size}",
             )
-        return
+        return False
     if count and header_size <= start:
         laszip = _laszip_payload(_read_at(f, header_size, start - header_size), n_vlrs)
         if laszip is not None:
@@ -123,6 +126,8 @@ def check_las_layout(
                 f, size, laszip, start=start, record=record, count=count, where=where,
                 decode=decode, point_format=format_id & 0x3F,
             )  # fmt: skip
+            return bool(struct.unpack_from("<I", laszip, 12)[0] == _VARIABLE_CHUNKS)
+    return False
 
 
 def _check_scales(head: bytes, where: Path | str) -> None:
@@ -279,7 +284,7 @@ def _laszip_payload(vlrs: bytes, n: int) -> bytes | None:
         if pos + _VLR_HEADER > len(vlrs):
             return None
         user, record_id, length = struct.unpack_from("<16sHH", vlrs, pos + 2)
-        if (user.rstrip(b"\0"), record_id) == _LASZIP_VLR:
+        if (user.split(b"\0")[0], record_id) == _LASZIP_VLR:  # laspy's reading of the id
             return vlrs[pos + _VLR_HEADER : pos + _VLR_HEADER + length]
         pos += _VLR_HEADER + length
     return None
@@ -375,6 +380,8 @@ def _check_laz(
             f"header says {count:,}"
         )
     layers = _layer_count(laszip, n_items)
+    if chunk_size == _VARIABLE_CHUNKS and decode is not None:
+        decode = (0, decode[1])  # read from the start, never sought into (check_las_layout)
     if layers and decode is not None:
         _check_layers(
             f,

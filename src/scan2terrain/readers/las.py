@@ -191,6 +191,9 @@ class LasInfo:
     mins: tuple[float, float, float]
     maxs: tuple[float, float, float]
     format: str
+    #: A LAZ file of variable-size chunks (COPC's): read from its start, never from a point
+    #: within (:func:`iter_las` skips to one by reading up to it; lazrs's seek gets it wrong).
+    variable_chunks: bool = False
 
 
 def is_url(name: Path | str) -> bool:
@@ -238,7 +241,11 @@ def las_info(path: Path | str) -> LasInfo:
 
     where: Path | str = path if is_url(path) else Path(path)
     try:
-        with _las_source(where) as source, _checked(source, where), laspy.open(source) as reader:
+        with (
+            _las_source(where) as source,
+            _checked(source, where) as variable,
+            laspy.open(source) as reader,
+        ):
             h = reader.header
             n = int(h.point_count)
             version = f"{h.version.major}.{h.version.minor}"
@@ -253,22 +260,24 @@ def las_info(path: Path | str) -> LasInfo:
         if not is_panic(exc):
             raise
         raise panic_error(where, exc) from exc
-    return LasInfo(where, n, mins, maxs, fmt)  # type: ignore[arg-type]  # 3-tuples
+    return LasInfo(where, n, mins, maxs, fmt, variable)  # type: ignore[arg-type]  # 3-tuples
 
 
 @contextlib.contextmanager
 def _checked(
     source: Any, where: Path | str, decode: tuple[int, int | None] | None = None
-) -> Iterator[None]:
-    """:func:`check_las_layout` on a path or a seekable file object (left at its start); an
-    unseekable stream is not checked (the PanicException backstop still applies)."""
+) -> Iterator[bool]:
+    """:func:`check_las_layout` on a path or a seekable file object (left at its start),
+    giving whether the file is a LAZ of variable-size chunks; an unseekable stream is not
+    checked (the PanicException backstop still applies; False)."""
+    variable = False
     if isinstance(source, Path):
         with source.open("rb") as f:
-            check_las_layout(f, source.stat().st_size, where, decode=decode)
+            variable = check_las_layout(f, source.stat().st_size, where, decode=decode)
     elif source.seekable():
-        check_las_layout(source, _size(source), where, decode=decode)
+        variable = check_las_layout(source, _size(source), where, decode=decode)
         source.seek(0)
-    yield
+    yield variable
 
 
 def _size(source: Any) -> int:
@@ -306,12 +315,14 @@ def iter_las(
         stop = None if count is None else start + count
         with (
             _las_source(where) as source,
-            _checked(source, where, (start, stop)),
+            _checked(source, where, (start, stop)) as variable,
             laspy.open(source) as reader,
         ):
             total = int(reader.header.point_count)
             want = total - start if count is None else min(count, total - start)
-            if start:
+            if start and variable:
+                _read_past(reader, start, step)
+            elif start:
                 reader.seek(start)
             while seen < want:
                 chunk = reader.read_points(min(step, want - seen))
@@ -334,6 +345,18 @@ def iter_las(
         raise InputError(
             where, f"truncated LAS file: expected points {start}..{start + want}, read {seen}"
         )
+
+
+def _read_past(reader: Any, n: int, step: int) -> None:
+    """Decode and drop the first ``n`` points of a LAZ of variable-size chunks, ``step`` at a
+    time: lazrs seeks into such a file wrongly (see ``check_las_layout``). The streamed path
+    plans such a file as one piece, so this runs only for callers that start elsewhere."""
+    done = 0
+    while done < n:
+        got = len(reader.read_points(min(step, n - done)))
+        if got == 0:
+            return  # the caller finds the file truncated
+        done += got
 
 
 def _xyz(
