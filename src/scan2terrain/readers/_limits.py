@@ -29,12 +29,12 @@ MIN_COORDINATE_M = 1.1754943508222875e-38
 #: Elevations, metres from the datum, either sign: what a planet has (Olympus Mons is 22 km
 #: high; the deepest trench 11 km deep). dem2world's ``--max-elevation`` widens it.
 MAX_ELEVATION_M = 1e5
-
-
-def within(path: object, field: str, value: float, *, lo: float, hi: float, unit: str) -> float:
 #: A body's semi-axes, metres, as a geographic CRS's ellipsoid gives them: from a small asteroid
 #: mapped in latitude and longitude (Bennu's radius is 245 m) to a gas giant (Jupiter's 7.1e7 m).
 MIN_BODY_RADIUS_M, MAX_BODY_RADIUS_M = 10.0, 1e8
+
+
+def within(path: object, field: str, value: float, *, lo: float, hi: float, unit: str) -> float:
     """``value`` when it is finite and ``lo <= |value| <= hi`` (``lo`` may be 0); else one
     :class:`InputError` naming the file, the field and the value."""
     if not (math.isfinite(value) and lo <= abs(value) <= hi):
