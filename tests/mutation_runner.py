@@ -8,8 +8,8 @@ print is caught too) to a file, calls ``scan2terrain.cli.main(argv)`` and leaves
 code (``os._exit``: no atexit handlers, no flushing of buffers inherited from the parent); an
 exception escaping ``main`` (a BaseException such as pyo3's PanicException) is printed and
 ends it with 1, as it would a real ``scan2terrain``. The parent ``wait4``s and reports, per
-case, the exit code or the signal, the child's peak RSS, its stderr and the files it left next
-to its output.
+case, the exit code or the signal, the child's peak RSS and CPU time, its stderr and the files
+it left next to its output.
 
 A fresh process, not the pytest process, is forked from: pytest may have run numba's parallel
 kernels or Open3D before (threads that do not survive a fork), and OpenBLAS is held to one
@@ -79,6 +79,8 @@ class Outcome:
     maxrss_mb: float
     seconds: float
     new_files: list[str] = field(default_factory=list)
+    #: CPU time of the child (user + system): what a case costs whatever else runs.
+    cpu_seconds: float = 0.0
 
     def describe(self) -> str:
         how = f"signal {self.signal}" if self.signal is not None else f"exit {self.exit}"
@@ -200,6 +202,7 @@ def _main() -> None:
             "maxrss_mb": usage.ru_maxrss / 1024,
             "seconds": time.monotonic() - start,
             "new_files": sorted(after - before),
+            "cpu_seconds": usage.ru_utime + usage.ru_stime,
         }
     print(json.dumps([results[i] for i in range(len(cases))]))
 
