@@ -78,14 +78,12 @@ Mutation = tuple[str, bytes]
 
 #: Cases that still fail, each with the reason (the bug, outside the fuzz). The test wants
 #: them to fail as described (and says so when one passes: then remove it here).
-KNOWN_BUGS: dict[str, str] = {
-    "ros1-cloud-msgs/bigendian": "issue 28: a PointCloud2 flagged big-endian (its floats then "
-    "3e38 m) is converted: coordinates beyond MAX_COORDINATE_M are not refused",
-}
+KNOWN_BUGS: dict[str, str] = {}
 
 #: Cases that must be refused (exit 2), not read: values that make no sense, which exited 0
 #: with an absurd world or a silently wrong one (issue 13).
 MUST_REFUSE = {
+    "ros1-cloud-msgs/bigendian",  # little-endian floats read big-endian: 3e38 m
     "bt/res-tiny",  # 1e-12 m voxels
     "bt/res-e20",  # 1e20 m voxels
     "bt/res-e-300",

@@ -21,8 +21,9 @@ TYPES: dict[int, tuple[str, str, tuple[float, float]]] = {
     2: ("B", "u1", (0, 255)),
     3: ("h", "i2", (-32768, 32767)),
     4: ("H", "u2", (0, 65535)),
-    5: ("i", "i4", (-(2**31), 2**31 - 1)),
-    6: ("I", "u4", (0, 2**32 - 1)),
+    # Coordinates are metres: within MAX_COORDINATE_M (1e9), all four bytes still in use.
+    5: ("i", "i4", (-(10**9), 10**9)),
+    6: ("I", "u4", (0, 10**9)),
     7: ("f", "f4", (-1e4, 1e4)),
     8: ("d", "f8", (-5e6, 5e6)),
 }
@@ -236,17 +237,20 @@ def test_all_points_non_finite() -> None:
     assert pointcloud2_xyz(encode(fields, height=2, width=2, point_step=12)).shape == (0, 3)
 
 
-def test_huge_finite_float64_points_are_kept() -> None:
-    # Their sum overflows to inf, so the quick all-finite check fails; none may be dropped
-    # (and no overflow warning escapes). The point with +inf and -inf goes.
+def test_points_beyond_the_physical_world_are_refused() -> None:
+    # Their sum overflows to inf, so the quick all-finite check fails; the point with +inf and
+    # -inf is a no-return and goes, the finite 1.5e308 m ones make no sense (issue 28): the
+    # first is named, with its axis and value (and no overflow warning escapes).
     fields = xyz_fields(8, 4)
     fields[0].values[:] = 1.5e308
     fields[1].values[2] = np.inf
     fields[2].values[2] = -np.inf
     msg = encode(fields, height=2, width=2, point_step=24)
-    got = pointcloud2_xyz(msg)
-    assert np.array_equal(got, reference_xyz(msg))
-    assert got.shape == (3, 3)
+    with pytest.raises(InputError, match=r"PointCloud2 point 0: x = 1\.5e\+308 m makes no sense"):
+        pointcloud2_xyz(msg)
+    fields[0].values[:] = 1e9  # at the limit: read
+    got = pointcloud2_xyz(encode(fields, height=2, width=2, point_step=24))
+    assert got.shape == (3, 3) and got[:, 0].max() == 1e9
 
 
 def good() -> Msg:

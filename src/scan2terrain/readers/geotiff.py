@@ -207,7 +207,12 @@ def _decode_page(
     _check_sample_format(path, sample_format, bits)
     if page.dtype is None or np.dtype(page.dtype).kind not in "iuf":
         raise InputError(path, f"samples of type {page.dtype} are not heights")
-    compression = int(page.compression)
+    try:
+        compression = int(page.compression)
+    except (TypeError, ValueError, OverflowError) as exc:  # a flipped count: several values
+        raise InputError(
+            path, f"Compression = {str(page.compression)[:40]} is not one TIFF compression code"
+        ) from exc
     if compression not in _compressions():
         raise InputError(path, f"Compression = {compression} is not a TIFF compression")
     if len(shape) != 2:

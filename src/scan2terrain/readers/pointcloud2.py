@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.readers._limits import MAX_COORDINATE_M
 
 #: sensor_msgs/PointField datatypes -> numpy type codes (byte order added per message).
 DATATYPES: dict[int, str] = {
@@ -59,7 +60,8 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
     InputError
         Without x, y or z fields; two fields of one name; a field with an unknown datatype, a
         count other than 1, or not fitting in ``point_step``; ``row_step`` shorter than a row;
-        ``data`` shorter than the declared points.
+        ``data`` shorter than the declared points; a finite coordinate beyond
+        ``MAX_COORDINATE_M`` (readers/_limits.py).
     """
     if int(msg.height) * int(msg.width) == 0:
         return np.zeros((0, 3))
@@ -76,10 +78,24 @@ def pointcloud2_xyz(msg: Any) -> NDArray[np.float64]:
     # path.
     with np.errstate(over="ignore", invalid="ignore"):  # inf - inf, huge float64: expected
         total = xyz.sum()
-    if np.isfinite(total):
-        return xyz
-    finite = np.isfinite(xyz)
-    return np.compress(finite[:, 0] & finite[:, 1] & finite[:, 2], xyz, axis=0)
+    if not np.isfinite(total):
+        finite = np.isfinite(xyz)
+        xyz = np.compress(finite[:, 0] & finite[:, 1] & finite[:, 2], xyz, axis=0)
+    _check_reach(xyz)
+    return xyz
+
+
+def _check_reach(xyz: NDArray[np.float64]) -> None:
+    """Refuse a finite coordinate beyond MAX_COORDINATE_M (a cloud flagged big-endian whose
+    floats are little-endian reads as 3e38 m): two reductions, the point found only then."""
+    if len(xyz) == 0 or max(float(xyz.max()), -float(xyz.min())) <= MAX_COORDINATE_M:
+        return
+    row, axis = divmod(int(np.flatnonzero(np.abs(xyz) > MAX_COORDINATE_M)[0]), 3)
+    raise InputError(
+        None,
+        f"PointCloud2 point {row}: {_XYZ[axis]} = {xyz[row, axis]:.6g} m makes no sense: its "
+        f"size must be within {MAX_COORDINATE_M:g} m",
+    )
 
 
 def pointcloud2_fields(msg: Any, names: Sequence[str]) -> dict[str, NDArray[Any]]:
