@@ -11,8 +11,8 @@ mutated file is run through the real command that reads it (``convert``, ``cloud
 case under an address-space limit. Asserted per case: exit 0 or 2, never 1, a signal (SIGABRT
 from a Rust allocation, SIGKILL) or a hang; on 2 the last stderr line is ``scan2terrain:
 error: <a path of the input>: ...``, every stderr line is scan2terrain's own (no traceback, no
-line printed by a library), and nothing new is left next to the output; peak memory under the
-budget.
+line printed by a library), and nothing new is left next to the output; peak memory and CPU
+time under their budgets.
 
 Issue 28 added seeds cut from every fixture DEM, LAS/LAZ, PLY, PCD, CSV/XYZ, MCAP, db3 and PNG
 (each maker says how it was cut small), and mutation kinds: every numeric header field at a
@@ -73,6 +73,10 @@ FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 LIMIT_BYTES = 3 << 30
 #: Resident memory any case may reach (MB).
 RSS_BUDGET_MB = 1000
+#: CPU time any case may take (s): every input here is small, and its slowest case takes under
+#: 2 s; issue 28 found a PLY declaring x twice, and a fixture CSV, taking over 30 s. CPU time,
+#: not wall time: a loaded machine does not make a case fail.
+CPU_BUDGET_S = 20.0
 
 Mutation = tuple[str, bytes]
 
@@ -1774,6 +1778,8 @@ def problems(built: Built, o: Outcome) -> list[str]:
             found.append(f"left behind: {o.new_files}")
     if o.maxrss_mb > RSS_BUDGET_MB:
         found.append(f"peak RSS {o.maxrss_mb:.0f} MB over {RSS_BUDGET_MB} MB")
+    if o.cpu_seconds > CPU_BUDGET_S:
+        found.append(f"{o.cpu_seconds:.0f} s of CPU, over {CPU_BUDGET_S:g} s")
     if o.exit == 0 and (why := must_refuse(o.name)):
         found.append(f"read, but must be refused: {why}")
     if o.exit == 0:  # read: what it wrote must make sense (tests/output_sanity.py)
