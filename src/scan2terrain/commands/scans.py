@@ -85,13 +85,13 @@ def bag2world(
 
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
-    cfg = cfg.for_insert("endpoints" if streaming(cfg) else "raycast")
     if streaming(cfg):
         from scan2terrain.commands import stream
 
         with open_bag(list(bags)) as bag:
             planned = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if planned.scan_topics:  # a map, or a trajectory only, is read as without --stream
+            cfg = cfg.for_insert("endpoints")  # the written config says how scans went in
             streamed = stream.stream_bag(bags, cfg, stream_progress)
             folder = stream.streamed_folder(streamed, Path(bags[0]), cfg)
             return write_world_folder(folder, out, overwrite=overwrite)
@@ -105,6 +105,7 @@ def bag2world(
                 else _map_topic_folder(bag, plan, cfg)
             )
             return write_world_folder(folder, out, overwrite=overwrite)
+        cfg = cfg.for_insert("raycast")
         columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
         recorder = BeamRecorder()
         tree, ingest = bag_octree(bag, cfg, plan, progress, columns, recorder=recorder)
