@@ -88,6 +88,16 @@ class Outcome:
         return f"{self.name}: {how}, {self.maxrss_mb:.0f} MB, {self.seconds:.2f} s: {tail}"
 
 
+def one_line(o: Outcome, src: Path | str) -> str:
+    """The command's only stderr line: an error naming ``src`` (exit 2, nothing written)."""
+    lines = o.stderr.strip().splitlines()
+    assert o.exit == 2 and o.signal is None, o.describe()
+    assert len(lines) == 1, o.describe()
+    assert lines[0].startswith(f"scan2terrain: error: {src}: "), o.describe()
+    assert not o.new_files, o.describe()
+    return lines[0]
+
+
 def run_cases(
     cases: Sequence[Case],
     *,

@@ -25,7 +25,7 @@ import pytest
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._limits import MAX_COORDINATE_M
-from tests.mutation_runner import Case, Outcome, run_cases
+from tests.mutation_runner import Case, Outcome, one_line, run_cases
 
 ROOT = Path(__file__).resolve().parents[2]
 CLOUDS = ROOT / "fixtures/clouds"
@@ -39,16 +39,6 @@ WORLD = ["--simulator", "gz", "--no-preview"]
 # The LAS 1.0-1.4 header: three float64 scale factors at byte 131, three offsets at 155, then
 # the bounds max X, min X, max Y, min Y, max Z, min Z from byte 179.
 SCALE, OFFSET, BOUNDS = 131, 155, 179
-
-
-def one_line(o: Outcome, src: Path) -> str:
-    """The command's only stderr line: an error naming ``src`` (exit 2, nothing written)."""
-    lines = o.stderr.strip().splitlines()
-    assert o.exit == 2 and o.signal is None, o.describe()
-    assert len(lines) == 1, o.describe()
-    assert lines[0].startswith(f"scan2terrain: error: {src}: "), o.describe()
-    assert not o.new_files, o.describe()
-    return lines[0]
 
 
 def _patched(src: Path, dst: Path, edits: dict[int, float]) -> Path:

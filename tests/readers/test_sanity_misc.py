@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.mutation_runner import Case, Outcome, run_cases
+from tests.mutation_runner import Case, Outcome, one_line, run_cases
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
@@ -29,16 +29,6 @@ LUMINAR = FIXTURES / "bags/bag2_derived_embark_luminar_mcap"
 LIMIT_BYTES = 3 << 30
 TIMEOUT_S = 60
 WORLD = ["--simulator", "gz", "--no-preview"]
-
-
-def one_line(o: Outcome, src: Path) -> str:
-    """The command's only stderr line: an error naming ``src`` (exit 2, nothing written)."""
-    lines = o.stderr.strip().splitlines()
-    assert o.exit == 2 and o.signal is None, o.describe()
-    assert len(lines) == 1, o.describe()
-    assert lines[0].startswith(f"scan2terrain: error: {src}: "), o.describe()
-    assert not o.new_files, o.describe()
-    return lines[0]
 
 
 Inputs = dict[str, tuple[Path, list[str], dict[str, int]]]
