@@ -43,6 +43,15 @@ def about(path: Path | str, context: str = "") -> Iterator[None]:
         raise InputError(path, f"{context}{exc.problem}") from exc
 
 
+def shown(text: str) -> str:
+    """``text`` read from a file (a topic, a frame, a type name) as a message shows it: each
+    character that is not printable escaped as Python writes it (``\\n``, ``\\x1d``), so the
+    message stays one line and says exactly what the file holds."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class ConfigError(Scan2TerrainError, ValueError):
     """A configuration value is out of range or unknown."""
 

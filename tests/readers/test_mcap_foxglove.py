@@ -340,3 +340,23 @@ def test_a_timestamp_that_is_not_a_time_is_refused(
         InputError, match=re.escape(f"{where}.timestamp (1 s, 2000000000 ns) is not")
     ):
         one(tmp_path, name, value, encoding)
+
+
+@pytest.mark.parametrize(
+    ("fields", "named"),
+    [
+        (b"\x0a\x01a" + b"\x1a\x03\xff\xfeb", "names a file in bytes that are not UTF-8"),
+        (b"\x0a\x03\xff\xfeb", "names a file in bytes that are not UTF-8"),
+        (b"\x0a\x01a" + b"\x1a\x03b\x1dc", "lacks b\\x1dc (circular?)"),
+    ],
+)
+def test_a_descriptor_set_naming_files_in_bytes_or_controls_is_refused(
+    fields: bytes, named: str
+) -> None:
+    """Seen (fuzz mcap-foxglove/flip4@5): a dependency in bytes that are not UTF-8 ended in a
+    TypeError (exit 1), as the refusal joined them as text."""
+    from scan2terrain.readers._foxglove_decode import protobuf_decoder
+
+    descriptor_set = b"\x0a" + bytes([len(fields)]) + fields  # FileDescriptorSet.file[0]
+    with pytest.raises(ValueError, match=re.escape(named)):
+        protobuf_decoder("foxglove.LaserScan", descriptor_set)

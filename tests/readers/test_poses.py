@@ -761,3 +761,24 @@ def test_sample_times_are_the_dynamic_edges_between_two_frames() -> None:
     assert buf.sample_times("laser", "base_link").tolist() == []  # a static edge only
     assert buf.sample_times("gps", "odom").tolist() == [7, 10, 30]
     assert buf.sample_times("map", "nowhere").tolist() == []
+
+
+def test_tf_samples_beyond_the_earth_are_counted_not_used() -> None:
+    """A flipped byte made a tf translation 3.5e76 m: the sample is refused like a NaN (one of
+    many in a recording), the others are used."""
+    buf = TfBuffer()
+    buf.add("odom", "base_link", 0, (0, 0, 0), (0, 0, 0, 1))
+    buf.add("odom", "base_link", S // 2, (3.5e76, 0, 0), (0, 0, 0, 1))
+    buf.add("odom", "base_link", S, (2, 0, 0), (0, 0, 0, 1))
+    buf.add_many("base_link", "laser", [0, S, 2 * S], [[0, 0, 1e9], [0, 0, -2e9], [0, 0, 1]],
+                 [[0, 0, 0, 1]] * 3)  # fmt: skip
+    assert buf.rejected == {"translation beyond 1e+09 m": 2}
+    assert "tf: 2 sample(s) ignored: translation beyond 1e+09 m" in buf.problems()
+    got = buf.lookup("odom", "base_link", S // 2)
+    assert got is not None
+    np.testing.assert_allclose(got.translation, [1, 0, 0])
+
+
+def test_a_track_beyond_the_earth_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"within 1e\+09 m, not -2e\+09 \(row 2, z\)"):
+        PoseTrack([0, 1], [[0, 0, 0], [0, 0, -2e9]], [[0, 0, 0, 1]] * 2)

@@ -18,6 +18,7 @@ import struct
 import zlib
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -445,6 +446,65 @@ def meta_inputs(tmp: Path) -> Inputs:
     return out
 
 
+# --- poses and names ---------------------------------------------------------------------------
+
+FAR = 3.5e76  # a tf translation seen after one flipped byte: points written at 3.5e76 m
+
+
+def _room_with(variant: str, change: Callable[[list[Any]], list[Any]]) -> Any:
+    """The fuzz's synthetic room with its messages changed by ``change``."""
+    import copy
+    import dataclasses
+
+    from tests.test_mutations import room
+
+    r = room(variant)  # cached: changed in a copy
+    return dataclasses.replace(r, messages=change(copy.deepcopy(r.messages)))
+
+
+def _far_tf(messages: list[Any]) -> list[Any]:
+    """The third /tf message's first transform moved FAR along x."""
+    tf = [i for i, m in enumerate(messages) if m[0] == "/tf"]
+    topic, kind, t, msg = messages[tf[2]]
+    msg["transforms"][0]["transform"]["translation"]["x"] = FAR
+    messages[tf[2]] = (topic, kind, t, msg)
+    return messages
+
+
+def _far_odom(messages: list[Any]) -> list[Any]:
+    odom = [i for i, m in enumerate(messages) if m[0] == "/odom"]
+    messages[odom[2]][3]["pose"]["pose"]["position"]["y"] = -FAR
+    return messages
+
+
+def _named(messages: list[Any]) -> list[Any]:
+    """Topics whose names hold a newline and a group separator (Python's splitlines breaks at
+    both; a terminal shows neither)."""
+    return [(f"{m[0]}\x1d\nx", *m[1:]) for m in messages]
+
+
+def pose_inputs(tmp: Path) -> Inputs:
+    """A tf or odometry pose far beyond the Earth; names with control characters."""
+    from tests.bagmaker import ros1_bag_to_mcap
+
+    out: Inputs = {}
+    odom = tmp / "far-odom"
+    _room_with("odom", _far_odom).write(odom, "sqlite3")
+    out["odom-far"] = (odom, ["convert", "{in}", "{out}.xyz"], {})
+    room = tmp / "room"
+    _room_with("tf", list).write(room, "mcap")
+    tum = tmp / "far.tum"
+    tum.write_text(f"1700000000 0 0 0 0 0 0 1\n1700000001 {FAR} 0 0 0 0 0 1\n")
+    out["tum-far"] = (tum, ["convert", str(room), "{out}.xyz", "--poses", "trajectory",
+                            "--trajectory", "{in}"], {})  # fmt: skip
+    bag = tmp / "named.bag"
+    _room_with("tf", _named).write(bag, "ros1")
+    named = tmp / "named.mcap"
+    ros1_bag_to_mcap(bag, named, compression="none")
+    out["topic-controls"] = (named, ["convert", "{in}", "{out}.xyz", "--topic", "/none"], {})
+    return out
+
+
 # --- the commands, run once -----------------------------------------------------------------------
 
 BUILDERS: list[Callable[[Path], Inputs]] = [
@@ -453,6 +513,7 @@ BUILDERS: list[Callable[[Path], Inputs]] = [
     map_inputs,
     ply_inputs,
     meta_inputs,
+    pose_inputs,
 ]
 
 
@@ -644,3 +705,43 @@ def test_a_rosbag2_metadata_file_that_is_not_one_is_named(
     src, o, _ = commands[f"{case}-{kind}-{command}"]
     line = one_line(o, src)
     assert META_CASES[case][1] in line, line
+
+
+# --- 6. poses within reach of the Earth; names from files shown, not obeyed -----------------------
+
+
+def test_a_tf_sample_beyond_the_earth_is_dropped_like_a_nan(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Seen (mcap/flip1@14): convert wrote points at 3.5e76 m."""
+    import numpy as np
+
+    from scan2terrain.cli import main
+
+    _room_with("tf", _far_tf).write(tmp_path / "room", "mcap")
+    assert main(["convert", str(tmp_path / "room"), str(tmp_path / "o.xyz")]) == 0
+    assert "tf: 1 sample(s) ignored: translation beyond 1e+09 m" in capsys.readouterr().out
+    xyz = np.loadtxt(tmp_path / "o.xyz")
+    assert len(xyz) > 100
+    assert np.abs(xyz).max() < 20, np.abs(xyz).max()
+
+
+@pytest.mark.parametrize(("case", "named"), [
+    ("odom-far", f"odometry: translations must be within 1e+09 m, not {-FAR:g} (row 3, y)"),
+    ("tum-far", f"line 2: x {FAR:g} is beyond 1e+09 m"),
+])  # fmt: skip
+def test_a_trajectory_pose_beyond_the_earth_is_refused(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]], case: str, named: str
+) -> None:
+    src, o, _ = commands[case]
+    line = one_line(o, src)
+    assert named in line, line
+
+
+def test_names_from_a_file_are_shown_escaped_on_one_line(
+    commands: dict[str, tuple[Path, Outcome, dict[str, int]]],
+) -> None:
+    """Seen (mcap-ros1/flip1@2): a topic name with a newline made the error two lines."""
+    src, o, _ = commands["topic-controls"]
+    line = one_line(o, src)
+    assert "/scan\\x1d\\nx" in line, line

@@ -124,7 +124,11 @@ def _one_line(exc: BaseException, limit: int = 400) -> str:
 
 
 def _cut(text: str, limit: int) -> str:
-    text = re.sub(r"\s*[\r\n]+\s*", " ", text).strip()
+    """One line: a library's line breaks (and their indentation) as one space; any other
+    character that is not printable (a name from a damaged file) escaped, not obeyed."""
+    from scan2terrain.errors import shown
+
+    text = shown(re.sub(r"[ \t]*[\r\n][ \t\r\n]*", " ", text).replace("\t", " ").strip())
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

@@ -218,7 +218,7 @@ def bag_octree(
     notes = [*plan.reasons, f"scans: {counts.inserted} inserted ({counts.points:,} points)"]
     notes += skipped_notes(counts)
     if plan.tf is not None:
-        notes += [f"tf: {p}" for p in plan.tf.problems()]
+        notes += plan.tf.problems()
     return tree, Ingest(tuple(notes), start)
 
 
@@ -287,7 +287,7 @@ def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
             for e in sorted(tf.edges(), key=lambda e: (e.parent, e.child)):
                 kind = "static" if e.static else f"{e.samples} samples"
                 lines.append(f"    {e.parent} -> {e.child} ({kind})")
-            lines += [f"  tf: {p}" for p in tf.problems()]
+            lines += [f"  {p}" for p in tf.problems()]
         else:
             lines.append("  tf tree: none (no /tf or /tf_static)")
         try:
@@ -546,7 +546,8 @@ def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
     parts = list(_hits(posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range)))
     if not parts:
         raise InputError(bag.path, f"no scan could be posed ({counts.first_unposed})")
-    return np.concatenate(parts), [*plan.reasons, f"scans: {len(parts)}"]
+    tf = plan.tf.problems() if plan.tf is not None else []
+    return np.concatenate(parts), [*plan.reasons, f"scans: {len(parts)}", *tf]
 
 
 def _hits(scans: Iterator[Scan]) -> Iterator[NDArray[np.float64]]:

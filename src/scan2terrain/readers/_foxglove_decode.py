@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.errors import shown
 from scan2terrain.readers.foxglove import (
     _NS,
     FRAME_TRANSFORM,
@@ -333,6 +334,9 @@ def protobuf_decoder(name: str, schema: bytes) -> Callable[[bytes | memoryview],
         files = descriptor_pb2.FileDescriptorSet.FromString(schema).file
     except DecodeError as exc:
         raise ValueError(f"its FileDescriptorSet cannot be parsed ({exc})") from None
+    for f in files:  # proto2 strings are not checked: upb gives invalid UTF-8 as bytes
+        if not all(isinstance(n, str) for n in (f.name, *f.dependency)):
+            raise ValueError("its FileDescriptorSet names a file in bytes that are not UTF-8")
     pool = descriptor_pool.DescriptorPool()
     pending = {f.name: f for f in files}
     added: set[str] = set()
@@ -343,7 +347,7 @@ def protobuf_decoder(name: str, schema: bytes) -> Callable[[bytes | memoryview],
                 {d for f in pending.values() for d in f.dependency} - added - set(pending)
             )
             raise ValueError(
-                f"its FileDescriptorSet lacks {', '.join(missing) or 'a file'} (circular?)"
+                f"its FileDescriptorSet lacks {shown(', '.join(missing)) or 'a file'} (circular?)"
             )
         for f in ready:
             try:

@@ -68,7 +68,7 @@ from rosbags.interfaces import (
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from scan2terrain.errors import InputError
+from scan2terrain.errors import InputError, shown
 from scan2terrain.readers import _foxglove_decode, foxglove
 from scan2terrain.readers._bag_errors import _one_line, _undecodable
 from scan2terrain.readers._mcap_layout import (
@@ -378,9 +378,9 @@ class McapFile:
             if conn.id not in self._skip and (why := _undecodable(self.typestore, conn.msgtype)):
                 self._skip[conn.id] = why.replace("in the bag nor in ROS 2 Humble", "in the file")
         if self.connections and len(self._skip) == len(self.connections):
-            found = "; ".join(f"{c.topic}: {self._skip[c.id]}" for c in self.connections[:4]) + (
-                "; ..." if len(self.connections) > 4 else ""
-            )
+            found = "; ".join(
+                f"{shown(c.topic)}: {self._skip[c.id]}" for c in self.connections[:4]
+            ) + ("; ..." if len(self.connections) > 4 else "")
             raise InputError(self._named, f"no channel of this MCAP file can be read: {found}")
 
     def _channel_type(self, ch: Channel, typs: dict[str, object]) -> tuple[str, str, str]:
@@ -389,7 +389,9 @@ class McapFile:
             return "", f"no schema for {ch.message_encoding!r} messages", ""
         schema = self._layout.schemas.get(ch.schema_id)
         if schema is None:
-            raise _Damaged(f"channel {ch.topic} names schema {ch.schema_id}, which is missing")
+            raise _Damaged(
+                f"channel {shown(ch.topic)} names schema {ch.schema_id}, which is missing"
+            )
         pair = (ch.message_encoding, schema.encoding)
         decoder = DECODERS.get(pair)
         if decoder is None:

@@ -49,7 +49,7 @@ from rosbags.rosbag2.reader import DirectoryReader
 from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import Stores, get_typestore
 
-from scan2terrain.errors import InputError
+from scan2terrain.errors import InputError, shown
 from scan2terrain.readers import foxglove
 from scan2terrain.readers._bag_errors import (
     _culprit,
@@ -322,7 +322,8 @@ class Bag:
         parts = []
         for t in self.topics.values():
             note = ", cannot be decoded" if t.name in self.skipped else ""
-            parts.append(f"{t.name} ({t.msgtype or 'mixed types'}, {t.count}{note})")
+            kind = shown(t.msgtype) if t.msgtype else "mixed types"
+            parts.append(f"{shown(t.name)} ({kind}, {t.count}{note})")
         return ", ".join(parts) if parts else "no topics"
 
     def topics_of_type(self, msgtypes: str | Iterable[str]) -> list[str]:
@@ -470,8 +471,9 @@ class Bag:
             except Exception as exc:  # a damaged message: its bytes do not fit the definition
                 raise InputError(
                     self._owner([conn]),
-                    f"message on {conn.topic} at {(t_ns - self.start_ns) / 1e9:.3f} s cannot be "
-                    f"decoded as {conn.msgtype} ({_one_line(str(exc)) or type(exc).__name__})",
+                    f"message on {shown(conn.topic)} at {(t_ns - self.start_ns) / 1e9:.3f} s "
+                    f"cannot be decoded as {conn.msgtype} "
+                    f"({_one_line(str(exc)) or type(exc).__name__})",
                 ) from exc
             yield conn.topic, int(t_ns), msg
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from scan2terrain.readers._limits import MAX_COORDINATE_M
 from scan2terrain.readers.poses import (
     DEFAULT_MAX_GAP_NS,
     NS_PER_S,
@@ -45,6 +46,9 @@ from scan2terrain.readers.poses import (
 )
 from scan2terrain.readers.tracks import PoseTrack
 from scan2terrain.types import Transform, normalise_frame
+
+#: Why a sample whose translation no place on a planet has is refused (a damaged number).
+_FAR = f"translation beyond {MAX_COORDINATE_M:g} m"
 
 __all__ = [
     "ParentConflict",
@@ -225,8 +229,9 @@ class TfBuffer:
         """Add one sample of the pose of ``child`` in ``parent`` at ``t_ns`` (nanoseconds).
 
         ``translation`` is (x, y, z) in metres, ``quaternion_xyzw`` any non-zero quaternion.
-        Refused samples are counted, not raised (a bag is read to the end). A static edge keeps
-        its latest sample.
+        Refused samples (non-finite numbers, a zero quaternion, a translation beyond
+        ``MAX_COORDINATE_M``) are counted, not raised (a bag is read to the end). A static edge
+        keeps its latest sample.
         """
         parent, child = normalise_frame(parent), normalise_frame(child)
         x, y, z = (float(v) for v in translation)
@@ -235,6 +240,9 @@ class TfBuffer:
         finite = all(math.isfinite(v) for v in (x, y, z, norm2))
         if not (finite and norm2 > 0):
             self._reject("non-finite number or zero quaternion")
+            return
+        if max(abs(x), abs(y), abs(z)) > MAX_COORDINATE_M:
+            self._reject(_FAR)
             return
         edge = self._edge_for(parent, child, static, 1)
         if edge is None:
@@ -278,6 +286,10 @@ class TfBuffer:
         good = np.isfinite(p).all(axis=1) & np.isfinite(norms) & (norms > 0)
         if not good.all():
             self._reject("non-finite number or zero quaternion", int((~good).sum()))
+        far = good & (np.abs(p) > MAX_COORDINATE_M).any(axis=1)
+        if far.any():
+            self._reject(_FAR, int(far.sum()))
+            good &= ~far
         n = int(good.sum())
         if n == 0:
             return

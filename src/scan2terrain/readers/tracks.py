@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import regular_file
+from scan2terrain.readers._limits import MAX_COORDINATE_M
 from scan2terrain.readers.poses import (
     DEFAULT_MAX_GAP_NS,
     NS_PER_S,
@@ -150,6 +151,12 @@ class PoseTrack:
             raise ValueError(f"quaternions_xyzw must have shape ({m}, 4), got {q.shape}")
         if not np.isfinite(p).all():
             raise ValueError("translations must be finite")
+        if (far := np.abs(p) > MAX_COORDINATE_M).any():
+            row, axis = divmod(int(np.flatnonzero(far)[0]), 3)
+            raise ValueError(
+                f"translations must be within {MAX_COORDINATE_M:g} m, not {p[row, axis]:g} "
+                f"(row {row + 1}, {'xyz'[axis]})"
+            )
         norms = np.linalg.norm(q, axis=1)
         if not (np.isfinite(norms).all() and (norms > 0).all()):
             raise ValueError("quaternions_xyzw must be finite and non-zero")
@@ -492,6 +499,14 @@ def read_tum(
     bad = ~np.isfinite(data).all(axis=1)
     if bad.any():
         raise InputError(path, f"line {rows[int(np.argmax(bad))][0]} holds a NaN or infinity")
+    far = np.abs(data[:, 1:4]) > MAX_COORDINATE_M
+    if far.any():
+        row, axis = divmod(int(np.flatnonzero(far)[0]), 3)
+        raise InputError(
+            path,
+            f"line {rows[row][0]}: {'xyz'[axis]} {data[row, 1 + axis]:g} is beyond "
+            f"{MAX_COORDINATE_M:g} m",
+        )
     bad = np.abs(data[:, 0]) > _MAX_ABS_SECONDS
     if bad.any():
         raise InputError(path, f"line {rows[int(np.argmax(bad))][0]}: time out of range")
