@@ -9,17 +9,12 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from scan2terrain.cli.display import ProgressBar, TaskBar, report
-from scan2terrain.cli.parser import COMMAND_DEFAULTS, build_parser, flags_of, name_flags
+from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS
+from scan2terrain.cli.display import report
+from scan2terrain.cli.parser import build_parser, flags_of, name_flags
 from scan2terrain.config import TOP_LEVEL_KEYS, load_config
-
-if TYPE_CHECKING:
-    from scan2terrain.config import Config
-
-#: Commands whose work runs in numba kernels (compiled on a first run, see warmup.py).
-NUMBA_COMMANDS = ("octree2world", "bag2world", "cloud2world")
 
 __all__ = ["COMMAND_DEFAULTS", "build_parser", "main", "report"]
 
@@ -146,20 +141,21 @@ def _drop_stdout() -> None:
 def _run(args: argparse.Namespace) -> int:
     from scan2terrain.checks import refuse_existing
 
+    command = COMMANDS[args.command]
     overrides: dict[str, Any] = {
         k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS
     }
-    cfg = load_config(args.config, overrides, defaults=COMMAND_DEFAULTS.get(args.command))
+    cfg = load_config(args.config, overrides, defaults=dict(command.defaults))
     out = getattr(args, "out", None)
     side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
     if out is not None and side_inputs:  # files besides the command's input never go either
         refuse_existing(out, args.overwrite, tuple(side_inputs))
-    if args.command in NUMBA_COMMANDS and not args.quiet:
+    if command.numba and not args.quiet:
         # Said when numba really compiles (a cache miss), and how long it took, once done.
         from scan2terrain.warmup import CompileWatch
 
         with CompileWatch(on_start=_say_compiling) as watch:
-            code = _command(args, cfg)
+            text = command.run(args, cfg)
         if watch.compiled:
             took = f"{watch.seconds:.0f}" if watch.seconds >= 1 else f"{watch.seconds:.1f}"
             print(
@@ -167,8 +163,11 @@ def _run(args: argparse.Namespace) -> int:
                 "the cache",
                 file=sys.stderr,
             )
-        return code
-    return _command(args, cfg)
+    else:
+        text = command.run(args, cfg)
+    if not args.quiet:
+        print(text)
+    return 0
 
 
 def _say_compiling() -> None:
@@ -182,83 +181,3 @@ def _say_compiling() -> None:
         tqdm.write(line, file=sys.stderr)
     else:
         print(line, file=sys.stderr, flush=True)
-
-
-def _command(args: argparse.Namespace, cfg: Config) -> int:
-    if args.command in ("bag2world", "cloud2world", "convert", "inspect"):
-        return _run_scans(args, cfg)
-    if args.command == "map2world":
-        from scan2terrain.commands.maps import map2world
-
-        result = map2world(args.map, args.out, cfg, overwrite=args.overwrite)
-    elif args.command == "octree2world":
-        from scan2terrain.commands.voxels import octree2world
-
-        with ProgressBar(enabled=show_progress(args)) as bar:
-            result = octree2world(
-                args.tree, args.out, cfg, overwrite=args.overwrite, progress=bar.update
-            )
-    elif args.command == "fidelity":
-        from scan2terrain.commands.replay import fidelity_command
-
-        result = fidelity_command(
-            args.world,
-            args.recording,
-            args.out,
-            cfg,
-            simulator=cfg.world.simulator,
-            overwrite=args.overwrite,
-        )
-    elif args.command == "dem2world":
-        from scan2terrain.commands.dem import dem2world
-
-        result = dem2world(args.dem, args.out, cfg, overwrite=args.overwrite)
-    else:
-        from scan2terrain.commands.maps import image2world
-
-        result = image2world(args.image, args.out, cfg, overwrite=args.overwrite)
-    if not args.quiet:
-        print(report(result))
-    return 0
-
-
-def _run_scans(args: argparse.Namespace, cfg: Config) -> int:
-    from scan2terrain.commands import scans
-
-    if args.command == "inspect":
-        print(scans.inspect_bag(args.bag, cfg))
-        return 0
-    if args.command == "convert":
-        text = scans.convert(args.source, args.target, cfg, overwrite=args.overwrite)
-        if not args.quiet:
-            print(text)
-        return 0
-    show = show_progress(args)
-    if args.command == "cloud2world":
-        with TaskBar(enabled=show) as tasks:
-            result = scans.cloud2world(
-                args.clouds, args.out, cfg, overwrite=args.overwrite, stream_progress=tasks.update
-            )
-    else:
-        with (
-            ProgressBar(enabled=show) as bar,
-            TaskBar(enabled=show) as tasks,
-        ):
-            progress = bar.update if bar.enabled else None  # no bar: no counting pass
-            result = scans.bag2world(
-                args.bag,
-                args.out,
-                cfg,
-                overwrite=args.overwrite,
-                progress=progress,
-                stream_progress=tasks.update,
-            )
-    if not args.quiet:
-        print(report(result))
-    return 0
-
-
-def show_progress(args: argparse.Namespace) -> bool:
-    """--progress / --no-progress, else when stderr is a terminal; never with --quiet."""
-    show = sys.stderr.isatty() if args.progress is None else args.progress
-    return bool(show) and not args.quiet

@@ -7,28 +7,33 @@ import argparse
 import difflib
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn, cast
+from typing import Any, NoReturn
 
+from scan2terrain.cli.dispatch import COMMANDS
 from scan2terrain.cli.options import (
+    Options,
     cloud_filter_options,
     common,
+    config_option,
     fidelity_option,
     geometry_options,
     georef_options,
+    max_range_option,
     octree_options,
+    out_options,
+    overwrite_option,
     path_or_url,
     progress_option,
+    run_options,
     scan_options,
+    simulator_option,
     stream_options,
     unknown_options,
     voxel_options,
 )
-from scan2terrain.config import (
-    TOP_LEVEL_KEYS,
-    load_config,
-)
+from scan2terrain.config import load_config
 
 EXAMPLES = r"""
 examples:
@@ -44,21 +49,16 @@ examples:
 """[1:]
 
 
-#: Defaults a command sets before the config file and the flags (which both override them).
-COMMAND_DEFAULTS: dict[str, dict[str, Any]] = {
-    # A DEM spans hundreds of metres of height: 8 bits would be steps of range / 255.
-    "dem2world": {"terrain.bit_depth": 16, "world.simulator": "gz", "filter.kind": "none"},
-    # Clouds come at every scale, from a room to an airborne survey: see cloud_resolution.
-    "cloud2world": {"octree.resolution": None},
-    # A world is scored for one simulator: gz-sim's, unless told.
-    "fidelity": {"world.simulator": "gz"},
-}
-
-
 class Parser(argparse.ArgumentParser):
     """argparse, with what a user reads first put first: a usage mistake is the error line (a
     mistyped option or choice with its nearest match: "did you mean --height?"), then a
     one-line usage and where the full help is; sub-commands are made of this class too."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        #: The top level's commands (empty in a command's own parser): each one's parser and
+        #: the flags of its config options.
+        self.commands: dict[str, tuple[Parser, dict[str, str]]] = {}
 
     def parse_known_args(  # type: ignore[override]
         self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
@@ -75,17 +75,16 @@ class Parser(argparse.ArgumentParser):
         parser.exit(2, f"{parser.prog}: error: {message}\n{parser._short_usage()}\n")
 
     def _command(self) -> Parser | None:
-        subs = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
         for word in getattr(self, "_given", []):
-            if subs and word in subs[0].choices:
-                return cast(Parser, subs[0].choices[word])
+            if word in self.commands:
+                return self.commands[word][0]
         return None
 
     def _unknown_options(self) -> list[str]:
         """Each option given that this parser (or the command it names) does not take, with
         the nearest one it does."""
         parser = self._command() or self
-        if parser is self and any(isinstance(a, argparse._SubParsersAction) for a in self._actions):
+        if parser is self and self.commands:
             return []  # no command named: the command word is the mistake
         known = [o for a in parser._actions for o in a.option_strings]
         words = getattr(parser, "_given", getattr(self, "_given", []))
@@ -106,7 +105,7 @@ class Parser(argparse.ArgumentParser):
     def _short_usage(self) -> str:
         words = [self.prog]
         for a in self._actions:
-            if isinstance(a, argparse._SubParsersAction):
+            if a.nargs == argparse.PARSER:  # the command word
                 words.append("COMMAND ...")
             elif not a.option_strings:
                 words.append(_metavar(a) + (" ..." if a.nargs == "+" else ""))
@@ -125,14 +124,8 @@ _NUMBER = re.compile(r"-\d+(\.\d*)?(e-?\d+)?|-\.\d+")
 
 def flags_of(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
     """Config key -> the flag that sets it, for ``command`` (its longest option string)."""
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if command is None or not subs or command not in subs[0].choices:
-        return {}
-    flags: dict[str, str] = {}
-    for a in subs[0].choices[command]._actions:
-        if a.option_strings and ("." in a.dest or a.dest in TOP_LEVEL_KEYS):
-            flags.setdefault(a.dest, max(a.option_strings, key=len))
-    return flags
+    commands = parser.commands if isinstance(parser, Parser) else {}
+    return commands[command][1] if command in commands else {}
 
 
 def name_flags(message: str, flags: dict[str, str]) -> str:
@@ -184,8 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    add = _adder(parser, sub)
 
-    m = sub.add_parser(
+    m = add(
         "map2world",
         help="ROS map_server map (YAML + image) -> Gazebo world folder",
         description="Read a map_server map exactly as map_server does, filter it and write a "
@@ -196,14 +190,13 @@ def build_parser() -> argparse.ArgumentParser:
         "  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3\n"
         "  scan2terrain map2world fixtures/maps/map_tb3_world_mapsaver/map.yaml -o tb3_terrain "
         "--geometry heightmap\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    m.add_argument("map", type=Path, help="map_server YAML file")
+    m.add("map", type=Path, help="map_server YAML file")
     common(m)
     geometry_options(m, voxels=False)
     unknown_options(m)
 
-    i = sub.add_parser(
+    i = add(
         "image2world",
         help="any image -> Gazebo world folder (luminance is height)",
         description="Read any image (PNG/JPG/TIFF/BMP/PGM, grey/RGB/RGBA/palette/16-bit), take "
@@ -211,12 +204,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="example:\n"
         "  scan2terrain image2world fixtures/images/heightmap_png_bowl/heightmap_bowl.png "
         "-o bowl --resolution 0.05 --height 2\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    i.add_argument("image", type=Path, help="image file")
+    i.add("image", type=Path, help="image file")
     common(i)
-    i.add_argument("--resolution", type=float, dest="image.resolution", help="metres per pixel")
-    i.add_argument(
+    i.add("--resolution", type=float, dest="image.resolution", help="metres per pixel")
+    i.add(
         "--origin",
         type=float,
         nargs="+",
@@ -224,7 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
         dest="image.origin",
         help="pose x y [yaw] of the lower-left corner (default: centred on 0, 0)",
     )
-    t = sub.add_parser(
+    t = add(
         "octree2world",
         help="OctoMap .bt file or OctoMap text scan file -> Gazebo world folder",
         description="Project an OctoMap octree (a .bt file, or a scan file ray-cast into a new "
@@ -235,48 +227,39 @@ def build_parser() -> argparse.ArgumentParser:
         "  scan2terrain octree2world fixtures/octomap/geb079.bt -o geb079 --z-min 0.1 --z-max 1.8\n"
         "  scan2terrain octree2world fixtures/octomap/scan.dat.bz2 -o fr079 --resolution 0.1 "
         "--grid height --progress\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    t.add_argument("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
+    t.add("tree", type=Path, help=".bt file, or OctoMap scan file (.dat[.bz2|.gz])")
     common(t)
     geometry_options(t)
     octree_options(t)
     voxel_options(t)
     fidelity_option(t)
     progress_option(t)
-    bag_commands(sub)
-    dem_command(sub)
-    fidelity_command(sub)
-    _state_defaults(sub)
+    bag_commands(add)
+    dem_command(add)
+    fidelity_command(add)
     return parser
 
 
-def _state_defaults(sub: Any) -> None:
-    """Append ``(default: X)`` to the help of every option that sets a config value, X being
-    that command's effective default (the config's, after its ``COMMAND_DEFAULTS``): one
-    source, so help cannot drift from behaviour. Options whose default is None say in their
-    own words what happens without them."""
-    for command, parser in sub.choices.items():
-        cfg = load_config(None, {}, defaults=COMMAND_DEFAULTS.get(command))
-        for action in parser._actions:
-            if not ("." in action.dest or action.dest in TOP_LEVEL_KEYS):
-                continue
-            if isinstance(action, argparse._StoreConstAction) or action.help is None:
-                continue
-            value: Any = cfg
-            for part in action.dest.split("."):
-                value = getattr(value, part)
-            if value is not None:
-                action.help = f"{action.help} (default: {_shown(value)})"
+Adder = Callable[..., Options]
 
 
-def _shown(value: object) -> str:
-    power = isinstance(value, int) and value >= 1 << 20 and value & (value - 1) == 0
-    return f"2^{value.bit_length() - 1}" if power and isinstance(value, int) else str(value)
+def _adder(parser: Parser, sub: Any) -> Adder:
+    """``add(name, help=..., description=..., epilog=...)``: a command's parser, recorded in
+    ``parser.commands``, as the :class:`Options` its options are declared through (with that
+    command's effective defaults: the config's, after its own)."""
+
+    def add(name: str, **kw: Any) -> Options:
+        p = sub.add_parser(name, formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+        o = Options(p, load_config(None, {}, defaults=dict(COMMANDS[name].defaults)))
+        parser.commands[name] = (p, o.flags)
+        return o
+
+    return add
 
 
-def bag_commands(sub: Any) -> None:
-    b = sub.add_parser(
+def bag_commands(add: Adder) -> None:
+    b = add(
         "bag2world",
         help="ROS1/ROS 2 bag or MCAP (LaserScan, PointCloud2 or a map) -> Gazebo world folder",
         description="Read a bag with no ROS installed (ROS1 .bag, rosbag2 folder, .db3, .mcap, "
@@ -291,9 +274,8 @@ def bag_commands(sub: Any) -> None:
         "--resolution 0.2\n"
         "  scan2terrain bag2world fixtures/bags/bag1_leg_tracker_room_scan -o room "
         "--pose 0 0 0.3 0 0 0 --resolution 0.05\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    b.add_argument("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
+    b.add("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
     common(b)
     geometry_options(b)
     octree_options(b)
@@ -303,7 +285,7 @@ def bag_commands(sub: Any) -> None:
     stream_options(b)
     progress_option(b)
 
-    c = sub.add_parser(
+    c = add(
         "cloud2world",
         help="point-cloud files (PCD, PLY, XYZ, CSV, LAS/LAZ) -> Gazebo world folder",
         description="Read point-cloud files (float64 kept until a local origin is subtracted), "
@@ -316,9 +298,8 @@ def bag_commands(sub: Any) -> None:
         "-o terrain --las-classes 2 --grid height --resolution 1\n"
         "  scan2terrain cloud2world fixtures/clouds/pc_laz_autzen_trim/*.laz -o city "
         "--grid height --resolution 0.5 --stream --workers 2\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    c.add_argument(
+    c.add(
         "clouds",
         type=path_or_url,
         nargs="+",
@@ -334,7 +315,7 @@ def bag_commands(sub: Any) -> None:
     stream_options(c)
     progress_option(c)
 
-    v = sub.add_parser(
+    v = add(
         "convert",
         help="point-cloud file or bag -> one point-cloud file",
         description="Convert between point-cloud formats (PCD, PLY, XYZ, CSV, LAS, LAZ), or merge "
@@ -344,50 +325,32 @@ def bag_commands(sub: Any) -> None:
         "hdl32.ply\n"
         "  scan2terrain convert fixtures/bags/bag1_embark_luminar_pointcloud merged.laz "
         "--topic /luminar_pointcloud --pose 0 0 1.8 0 0 0\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    v.add_argument("source", type=Path, nargs="+", help="input cloud file(s), bag, or CARMEN log")
-    v.add_argument("target", type=Path, help="output cloud file (format by extension)")
-    v.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    v.add_argument("--config", type=Path, help="YAML config file; flags override it")
+    v.add("source", type=Path, nargs="+", help="input cloud file(s), bag, or CARMEN log")
+    v.add("target", type=Path, help="output cloud file (format by extension)")
+    overwrite_option(v)
+    config_option(v)
     scan_options(v, bag=True)
     cloud_filter_options(v)
-    v.add_argument(
-        "--las-classes",
-        type=int,
-        nargs="+",
-        dest="scans.las_classes",
-        help="LAS classes to keep (default: all)",
-    )
-    v.add_argument(
-        "--max-range", type=float, dest="octree.max_range", help="drop bag hits beyond (m)"
-    )
-    v.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
-    v.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    max_range_option(v)
+    run_options(v)
 
-    n = sub.add_parser(
+    n = add(
         "inspect",
         help="what a bag holds and what bag2world would use",
         description="List a bag's topics, types, counts, duration and tf frames, and which "
         "topics and poses bag2world would use and why.",
         epilog="example:\n  scan2terrain inspect fixtures/bags/bag1_sick_lms1xx_radar_tf\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    n.add_argument("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
-    n.add_argument("--config", type=Path, help="YAML config file; flags override it")
+    n.add("bag", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or CARMEN log")
+    config_option(n)
     scan_options(n, bag=True)
-    n.add_argument(
-        "--max-range",
-        type=float,
-        dest="octree.max_range",
-        help="metres: as bag2world's (a Foxglove LaserScan's no-return readings clear this far)",
-    )
-    n.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
-    n.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    max_range_option(n)
+    run_options(n)
 
 
-def fidelity_command(sub: Any) -> None:
-    f = sub.add_parser(
+def fidelity_command(add: Adder) -> None:
+    f = add(
         "fidelity",
         help="score any Gazebo world against a recording: its beams replayed in the world",
         description="Cast every recorded beam (a bag's LaserScan/PointCloud2, posed as "
@@ -404,29 +367,21 @@ def fidelity_command(sub: Any) -> None:
         "--no-fidelity\n"
         "  scan2terrain fidelity tb3_world/world_gz.sdf fixtures/bags/bag1_fuse_tb3_sim_scan_odom "
         "-o tb3_fidelity --mount 0 0 0.2 0 0 0\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    f.add_argument("world", type=Path, help="world file (.sdf or .world)")
-    f.add_argument(
+    f.add("world", type=Path, help="world file (.sdf or .world)")
+    f.add(
         "recording", type=Path, nargs="+", help="bag file(s), rosbag2 folder, or OctoMap scan file"
     )
-    f.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist)")
-    f.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    f.add_argument("--config", type=Path, help="YAML config file; flags override it")
-    f.add_argument(
-        "--simulator",
-        choices=("gz", "classic"),
-        dest="world.simulator",
-        help="whose physics builds the world: where a heightmap lies and how it is sampled",
-    )
+    out_options(f)
+    config_option(f)
+    simulator_option(f, both=False)
     scan_options(f, bag=True, insert=False)
-    f.add_argument("--max-range", type=float, dest="octree.max_range", help="drop hits beyond (m)")
-    f.add_argument("-v", "--verbose", action="store_true", help="show tracebacks on failure")
-    f.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    max_range_option(f)
+    run_options(f)
 
 
-def dem_command(sub: Any) -> None:
-    d = sub.add_parser(
+def dem_command(add: Adder) -> None:
+    d = add(
         "dem2world",
         help="elevation model (single-band GeoTIFF) -> Gazebo world at true elevations",
         description="Read a DEM (GeoTIFF, projected or geographic; no GDAL needed) and write a "
@@ -445,19 +400,18 @@ def dem_command(sub: Any) -> None:
         "--dem-passthrough\n"
         "  scan2terrain dem2world fixtures/terrain/dem_sfbay_squared_geotiff/dem_squared.tif "
         "-o sfbay_both --simulator both --bit-depth 8\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    d.add_argument("dem", type=Path, help="DEM file (single-band GeoTIFF)")
+    d.add("dem", type=Path, help="DEM file (single-band GeoTIFF)")
     common(d, heights=False)
-    g = d.add_argument_group("elevation model")
-    g.add_argument(
+    g = d.group("elevation model")
+    g.add(
         "--resolution",
         type=float,
         dest="dem.resolution",
         help="heightmap pixel size in metres (default: the DEM's own); also the pixel size of "
         "a TIFF without georeference, which is refused without it",
     )
-    g.add_argument(
+    g.add(
         "--dem-passthrough",
         action="store_const",
         const=True,
@@ -465,7 +419,7 @@ def dem_command(sub: Any) -> None:
         help="also copy the GeoTIFF into a model and write world_gz_dem.sdf that loads it "
         "directly (gz-sim >= 7 built with GDAL)",
     )
-    g.add_argument(
+    g.add(
         "--max-elevation",
         type=float,
         metavar="M",
