@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+import types
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin, get_type_hints
+from typing import Annotated, Any, Literal, Union, get_args, get_origin, get_type_hints
 
 from scan2terrain.errors import ConfigError
 
@@ -53,6 +54,84 @@ LOCAL_ORIGINS: tuple[LocalOrigin, ...] = get_args(LocalOrigin)
 BIT_DEPTHS: tuple[BitDepth, ...] = get_args(BitDepth)
 
 
+@dataclass(frozen=True)
+class Must:
+    """A field's own rule, carried in its type (``Annotated[int, Must(...)]``): ``ok(value)``,
+    said as ``want`` in the refusal. None passes (a field that may be None is typed so);
+    :meth:`Config.validate` checks every field's rules in one loop."""
+
+    ok: Callable[[Any], bool]
+    want: str
+
+
+def span(lo: float, hi: float, want: str, *, open_lo: bool = False) -> Must:
+    """``lo <= value <= hi`` (``lo < value`` when ``open_lo``)."""
+    return Must(lambda v: (lo < v if open_lo else lo <= v) and v <= hi, want)
+
+
+def at_least(lo: float, want: str) -> Must:
+    return span(lo, math.inf, want)
+
+
+def positive(want: str) -> Must:
+    return span(0, math.inf, want, open_lo=True)
+
+
+def length(*counts: int, want: str) -> Must:
+    return Must(lambda v: len(v) in counts, want)
+
+
+#: Ranges of settings whose absurd values would exhaust memory or lose all precision.
+MAX_FILTER = 99  #: filter window side, cells
+MAX_METRES = 1e5  #: terrain heights
+MIN_CELL, MAX_CELL = 1e-4, 1e5  #: pixel and voxel sizes, metres
+MIN_VOXEL = 1e-3  #: OctoMap keys are 16-bit: at 1 mm the octree spans 65 m
+MAX_SIDE = 1 << 20  #: canvas sides and shifts, heightmap and map tile sides, cells
+MAX_ORIGIN = 1e9  #: a local origin's coordinates (a projected CRS spans < 1e8 m)
+
+_SIDE = span(1, MAX_SIDE, f"1..{MAX_SIDE} cells")
+_SHIFT = span(-MAX_SIDE, MAX_SIDE, f"within +-{MAX_SIDE} cells")
+_PROBABILITY = Must(lambda v: 0 < v < 1, "in (0, 1)")
+_POSE6 = length(6, want="[x, y, z, roll, pitch, yaw]")
+
+
+# Rules named, not lambdas: an annotation is evaluated with its class's namespace as globals.
+def _odd_window(n: int) -> bool:
+    return 3 <= n <= MAX_FILTER and n % 2 == 1
+
+
+def _finite_non_negative(x: float) -> bool:
+    return 0 <= x < math.inf
+
+
+def _las_classes(codes: list[int]) -> bool:
+    return all(0 <= k <= 255 for k in codes)
+
+
+def _address(text: str) -> bool:
+    return "://" in text
+
+
+def _model_name(name: str) -> bool:
+    return name.replace("_", "").replace("-", "").isalnum()
+
+
+def _local_origin(v: Any) -> bool:
+    return v in LOCAL_ORIGINS or (
+        isinstance(v, list)
+        and len(v) == 3
+        and all(isinstance(x, (int, float)) and abs(x) <= MAX_ORIGIN for x in v)
+    )
+
+
+def _max_side(n: int) -> bool:
+    return 3 <= n <= MAX_SIDE + 1 and (n - 1) & (n - 2) == 0
+
+
+def _tile_cells(n: int) -> bool:
+    return 1 <= n <= 1 << 14 and n & (n - 1) == 0
+
+
 @dataclass
 class CanvasConfig:
     """The paper's canvas options, in cells of the input grid.
@@ -63,10 +142,10 @@ class CanvasConfig:
     frame: cropping never loses the georeferencing.
     """
 
-    width: int | None = None
-    height: int | None = None
-    offset_x: int = 0
-    offset_y: int = 0
+    width: Annotated[int | None, _SIDE] = None
+    height: Annotated[int | None, _SIDE] = None
+    offset_x: Annotated[int, _SHIFT] = 0
+    offset_y: Annotated[int, _SHIFT] = 0
     invert: bool = False
 
 
@@ -79,9 +158,9 @@ class FilterConfig:
     #: modified median) | thin_wall (also diagonals)
     kind: FilterKind = "thin_wall"
     #: Window side for median/majority (odd, >= 3); paper/thin_wall always use 3x3.
-    size: int = 3
+    size: Annotated[int, Must(_odd_window, f"odd, 3..{MAX_FILTER}")] = 3
     #: Remove occupied specks of fewer cells than this (8-connected) after filtering; 0 = off.
-    speckle_min_cells: int = 0
+    speckle_min_cells: Annotated[int, at_least(0, ">= 0")] = 0
 
 
 @dataclass
@@ -89,17 +168,19 @@ class TerrainConfig:
     """How cells become ground heights and pixels."""
 
     #: Height of occupied cells (maps) or of a white pixel (images), metres.
-    height: float = 2.0
+    height: Annotated[
+        float, span(0, MAX_METRES, f"in (0, {MAX_METRES:g}] metres", open_lo=True)
+    ] = 2.0
     #: free | obstacle | height: unknown cells as floor, as walls, or at ``unknown_height``.
     unknown: UnknownPolicy = "free"
-    unknown_height: float = 0.5
+    unknown_height: Annotated[float, span(0, MAX_METRES, f"in [0, {MAX_METRES:g}] metres")] = 0.5
     #: Integer up-sampling: each cell becomes k x k pixels (thin walls get flat tops).
-    upsample: int = 1
+    upsample: Annotated[int, span(1, 16, "1..16")] = 1
     #: 8 (every Gazebo) or 16 (gz-sim Garden and newer).
     bit_depth: BitDepth = 8
     #: Largest heightmap side (2^n+1 pixels); a bigger grid is written as terrain tiles of this
     #: side placed edge to edge, neighbours sharing their border samples.
-    max_side: int = 4097
+    max_side: Annotated[int, Must(_max_side, f"2^n+1, 3..{MAX_SIDE + 1}")] = 4097
 
 
 @dataclass
@@ -110,9 +191,9 @@ class WorldConfig:
     #: | both (two worlds side by side, one model folder each).
     simulator: Simulator = "both"
     #: Model name; None derives a unique one from the input name and the terrain's content.
-    model_name: str | None = None
+    model_name: Annotated[str | None, Must(_model_name, "letters, digits, '_' and '-' only")] = None
     #: Vertex sampling written into the SDF (None: 1 for gz, 2 for classic, each one's default).
-    sampling: int | None = None
+    sampling: Annotated[int | None, at_least(1, ">= 1")] = None
     #: How occupancy grids become walls: mesh (extruded outlines: STL, DAE, OBJ) | boxes (the
     #: fewest boxes covering the occupied cells) | polylines (SDF <polyline>), each
     #: ``terrain.height`` high on a ground plane, map frame = world frame in both simulators;
@@ -121,7 +202,7 @@ class WorldConfig:
     geometry: Geometry = "auto"
     #: Outline simplification for mesh/polylines: staircases straightened within this many
     #: metres, never moving a cell centre across (the walls cover the same cells); 0 = cell edges.
-    simplify: float = 0.0
+    simplify: Annotated[float, Must(_finite_non_negative, ">= 0 metres (0: exact)")] = 0.0
     #: Walls' faces (mesh, boxes, polylines): on the cell boundaries (cells: a map's cells are
     #: the truth), or half a cell into a wall toward observed free space, where a scan's end
     #: points lie on average, on a grid of half the cell size (hits); auto: hits for grids
@@ -129,16 +210,25 @@ class WorldConfig:
     wall_faces: WallFaces = "auto"
     #: voxels: the side of the cubes (metres) the voxel mesh is cut into, one collision and
     #: visual each (bounded meshes keep Gazebo's mesh loading and broadphase fast).
-    chunk: float = 16.0
+    chunk: Annotated[float, span(0, MAX_METRES, f"in (0, {MAX_METRES:g}] metres", open_lo=True)] = (
+        16.0
+    )
     #: voxels: refuse (before writing) a world of more triangles than this.
-    max_triangles: int = 20_000_000
+    max_triangles: Annotated[int, at_least(1, ">= 1")] = 20_000_000
     #: voxels: occupied voxels in 3D connected components (26-connected) of fewer voxels than
     #: this are left out; 0 or 1 keeps all.
-    min_voxels: int = 0
+    min_voxels: Annotated[int, at_least(0, ">= 0")] = 0
     #: voxels: mesh coarser voxels than the octree's: its resolution times a power of two (a
     #: coarse voxel is occupied if any of its voxels is, as OctoMap's inner nodes); None: the
     #: octree's own.
-    voxel_size: float | None = None
+    voxel_size: Annotated[
+        float | None,
+        span(
+            MIN_VOXEL,
+            MAX_CELL,
+            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (the octree's resolution)",
+        ),
+    ] = None
 
 
 @dataclass
@@ -149,7 +239,7 @@ class OutputConfig:
     map_yaml: bool = True
     #: Largest map_server image side (pixels); a bigger map is written as tiles, each with its
     #: own YAML and origin.
-    map_max_side: int = 16384
+    map_max_side: Annotated[int, span(1, MAX_SIDE, f"1..{MAX_SIDE}")] = 16384
 
 
 @dataclass
@@ -157,9 +247,11 @@ class ImageConfig:
     """Inputs that carry no geometry of their own (image2world)."""
 
     #: Metres per pixel.
-    resolution: float = 0.05
+    resolution: Annotated[
+        float, span(MIN_CELL, MAX_CELL, f"{MIN_CELL:g}..{MAX_CELL:g} m/pixel")
+    ] = 0.05
     #: Pose [x, y, yaw] of the image's lower-left corner; None centres it on the origin.
-    origin: list[float] | None = None
+    origin: Annotated[list[float] | None, length(2, 3, want="[x, y] or [x, y, yaw]")] = None
 
 
 @dataclass
@@ -169,14 +261,21 @@ class OctreeConfig:
     #: Voxel side in metres, for scan inputs (a .bt file carries its own). None (cloud2world's
     #: default): ``DEFAULT_RESOLUTION``, or coarser for surveys, clouds too wide for
     #: ``terrain.max_side`` cells of it (see :func:`cloud_resolution`).
-    resolution: float | None = 0.05
+    resolution: Annotated[
+        float | None,
+        span(
+            MIN_VOXEL,
+            MAX_CELL,
+            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (from the clouds' extent)",
+        ),
+    ] = 0.05
     #: Beams longer than this (metres) are cut there and only clear; < 0 = unlimited (OctoMap).
     max_range: float = -1.0
-    hit: float = 0.7
-    miss: float = 0.4
-    clamp_min: float = 0.1192
-    clamp_max: float = 0.971
-    occupancy: float = 0.5
+    hit: Annotated[float, _PROBABILITY] = 0.7
+    miss: Annotated[float, _PROBABILITY] = 0.4
+    clamp_min: Annotated[float, _PROBABILITY] = 0.1192
+    clamp_max: Annotated[float, _PROBABILITY] = 0.971
+    occupancy: Annotated[float, _PROBABILITY] = 0.5
     #: Voxels whose centre z is in [z_min, z_max] (metres) make the 2D grid; None = unbounded,
     #: as octomap_server's occupancy_min_z / occupancy_max_z.
     z_min: float | None = None
@@ -190,9 +289,19 @@ class OctreeConfig:
     fill: Fill = "nearest"
     #: Empty columns farther than this (metres) from a known one stay empty (nearest fill);
     #: None: 4 cells, at least 1 m (a fixed distance shorter than a coarse cell fills nothing).
-    fill_max_distance: float | None = None
+    fill_max_distance: Annotated[
+        float | None, positive("> 0 metres, or null (4 cells, at least 1 m)")
+    ] = None
     #: none | ply | pcd: also write the occupied voxel centres as OUT/occupied_voxels.<ext>.
     points: VoxelPoints = "none"
+
+    @property
+    def z_band(self) -> tuple[float, float]:
+        """``[z_min, z_max]`` in metres, unbounded ends as infinities."""
+        return (
+            -math.inf if self.z_min is None else self.z_min,
+            math.inf if self.z_max is None else self.z_max,
+        )
 
 
 @dataclass
@@ -219,31 +328,40 @@ class ScansConfig:
     trajectory: str | None = None
     #: Sensor pose on the robot base [x, y, z, roll, pitch, yaw] (odom / trajectory poses);
     #: None: from /tf_static when it links the base to the sensor frame, else identity.
-    mount: list[float] | None = None
+    mount: Annotated[list[float] | None, _POSE6] = None
     #: Pose [x, y, z, roll, pitch, yaw] of a stationary sensor in the fixed frame (poses: fixed).
-    pose: list[float] | None = None
+    pose: Annotated[list[float] | None, _POSE6] = None
     #: raycast (free space too, as OctoMap's insertPointCloud) | endpoints (hits only, fast;
     #: for clouds that are already registered) | auto (raycast for bags, endpoints for files).
     insert: InsertMode = "auto"
     #: Longest gap (seconds) in tf or odometry that poses are interpolated across.
-    max_gap: float = 1.0
+    max_gap: Annotated[float, positive("> 0 seconds")] = 1.0
     #: LAS/LAZ classes to keep (e.g. [2]: ground); None keeps every point.
-    las_classes: list[int] | None = None
+    las_classes: Annotated[
+        list[int] | None,
+        Must(_las_classes, "LAS classification codes, 0..255"),
+    ] = None
     #: Which message of an OccupancyGrid topic: -1 is the last, 0 the first.
     map_message: int = -1
     #: Cloud files: subtract a local origin (auto: when the points lie beyond 1 km of the
     #: origin, e.g. UTM, the rounded centre of their bounding box) | none | [x, y, z] (this
     #: one, in the clouds' own coordinates). The effective config records the origin that
     #: was subtracted as [x, y, z], so a rerun, or another tile of the survey, shares it.
-    local_origin: LocalOrigin | list[float] = "auto"
+    local_origin: Annotated[
+        LocalOrigin | list[float],
+        Must(_local_origin, f"auto, none or [x, y, z] within {MAX_ORIGIN:g} of 0"),
+    ] = "auto"
     #: Cloud files: their coordinate reference system (what pyproj reads: "EPSG:32610", WKT),
     #: for worlds placed on the earth (<spherical_coordinates>); None: a LAS/LAZ file's own.
     crs: str | None = None
     #: Cloud files: statistical outlier removal (Open3D's neighbour search): a point whose mean
     #: distance to its ``outlier_neighbours`` nearest points is above the mean of all such
     #: distances + this many standard deviations is dropped; None = off.
-    outliers: float | None = None
-    outlier_neighbours: int = 20
+    outliers: Annotated[
+        float | None,
+        span(0, 100, "in (0, 100] standard deviations, or null (off)", open_lo=True),
+    ] = None
+    outlier_neighbours: Annotated[int, span(1, 1000, "1..1000")] = 20
 
 
 @dataclass
@@ -254,14 +372,24 @@ class StreamConfig:
     #: Off: points go through the octree (ray casting possible). On: end points only, streamed.
     enabled: bool = False
     #: Points read and rasterised at a time: the fixed working set.
-    chunk_points: int = 2_000_000
+    chunk_points: Annotated[int, span(1, 1 << 30, "1..2^30")] = 2_000_000
     #: Grid tiles are this many cells a side (a power of two): the unit of allocation, merging
     #: and of what a Dask task sends back (24 bytes a cell).
-    tile_cells: int = 256
+    tile_cells: Annotated[int, Must(_tile_cells, "a power of two up to 16384")] = 256
     #: Dask: a local cluster of this many worker processes; 0 = no Dask (single process).
-    workers: int = 0
+    workers: Annotated[int, span(0, 1024, "0..1024")] = 0
     #: Dask: an existing scheduler's address (tcp://HOST:PORT); workers must reach the inputs.
-    scheduler: str | None = None
+    scheduler: Annotated[str | None, Must(_address, "an address such as tcp://HOST:8786")] = None
+
+    @property
+    def distributed(self) -> bool:
+        """The streamed work runs on Dask (local workers or a scheduler)."""
+        return bool(self.workers or self.scheduler)
+
+    @property
+    def active(self) -> bool:
+        """End points are streamed into tiles: asked for, or implied by Dask."""
+        return self.enabled or self.distributed
 
 
 @dataclass
@@ -270,14 +398,18 @@ class DemConfig:
 
     #: Heightmap pixel size in metres; None = the DEM's own (the finer axis when its pixels are
     #: not square). Also the pixel size of a TIFF that carries no georeference.
-    resolution: float | None = None
+    resolution: Annotated[
+        float | None, span(MIN_CELL, MAX_CELL, f"{MIN_CELL:g}..{MAX_CELL:g} metres")
+    ] = None
     #: Also write world_gz_dem.sdf, a gz-sim world that loads the GeoTIFF itself (gz-sim >= 7
     #: built with GDAL).
     passthrough: bool = False
     #: Refuse a DEM with a valid elevation further than this from the datum, metres, either
     #: sign: readers/_limits.py's MAX_ELEVATION_M (what a planet has; a corrupt strip read as
     #: float32 gave 2.6e38 m), widened for a trusted file of something else.
-    max_elevation: float = 1e5
+    max_elevation: Annotated[
+        float, span(0, MAX_ORIGIN, f"> 0 and <= {MAX_ORIGIN:g} metres", open_lo=True)
+    ] = 1e5
 
 
 @dataclass
@@ -293,248 +425,86 @@ class Config:
     dem: DemConfig = field(default_factory=DemConfig)
     stream: StreamConfig = field(default_factory=StreamConfig)
     #: Refuse images with more pixels than this (decompression bombs).
-    max_pixels: int = 1 << 28
+    max_pixels: Annotated[int, positive("> 0")] = 1 << 28
     #: MiB a grid made from voxels or points may take (octree2world, bag2world, cloud2world):
     #: estimated from its cells before it is allocated, and refused above this.
-    max_memory: int = 8192
+    max_memory: Annotated[int, positive("> 0 (MiB)")] = 8192
 
     def validate(self) -> Config:
-        """Raise :class:`ConfigError` naming the first bad value; return self."""
-        c = self
-        _check_choices(c)
-        _check(c.filter.kind in FILTERS, "filter.kind", c.filter.kind, f"one of {FILTERS}")
-        _check(
-            3 <= c.filter.size <= MAX_FILTER and c.filter.size % 2 == 1,
-            "filter.size",
-            c.filter.size,
-            f"odd, 3..{MAX_FILTER}",
-        )
-        _check(
-            c.filter.speckle_min_cells >= 0,
-            "filter.speckle_min_cells",
-            c.filter.speckle_min_cells,
-            ">= 0",
-        )
-        _check(
-            0 < c.terrain.height <= MAX_METRES,
-            "terrain.height",
-            c.terrain.height,
-            f"in (0, {MAX_METRES:g}] metres",
-        )
-        _check(
-            0 <= c.terrain.unknown_height <= MAX_METRES,
-            "terrain.unknown_height",
-            c.terrain.unknown_height,
-            f"in [0, {MAX_METRES:g}] metres",
-        )
-        _check(1 <= c.terrain.upsample <= 16, "terrain.upsample", c.terrain.upsample, "1..16")
-        _check(
-            c.world.sampling is None or c.world.sampling >= 1,
-            "world.sampling",
-            c.world.sampling,
-            ">= 1",
-        )
-        w = c.world
-        _check(
-            0 <= w.simplify < float("inf"), "world.simplify", w.simplify, ">= 0 metres (0: exact)"
-        )
+        """Raise :class:`ConfigError` naming the first bad value; return self. Each field's own
+        rules are in its type (:class:`Must`); the rules across fields are here."""
+        c, w, o, sc = self, self.world, self.octree, self.scans
+        _check_fields(c)
         walls = w.geometry not in ("auto", "heightmap", "voxels")
-        _check(0 < w.chunk <= MAX_METRES, "world.chunk", w.chunk, f"in (0, {MAX_METRES:g}] metres")
-        _check(w.max_triangles >= 1, "world.max_triangles", w.max_triangles, ">= 1")
-        _check(w.min_voxels >= 0, "world.min_voxels", w.min_voxels, ">= 0")
-        _check(
-            w.voxel_size is None or MIN_VOXEL <= w.voxel_size <= MAX_CELL,
-            "world.voxel_size",
-            w.voxel_size,
-            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (the octree's resolution)",
-        )
         voxels = w.geometry == "voxels"
-        _check(
-            not voxels or c.octree.grid == "occupancy",
-            "octree.grid",
-            c.octree.grid,
-            "occupancy with world.geometry voxels (the voxels themselves are the world)",
-        )
-        _check(
-            not voxels or c.terrain.unknown == "free",
-            "terrain.unknown",
-            c.terrain.unknown,
-            "free with world.geometry voxels (unknown voxels are empty space)",
-        )
-        _check(
-            not voxels or not (c.stream.enabled or c.stream.workers or c.stream.scheduler),
-            "world.geometry",
-            w.geometry,
-            "not voxels with --stream, --workers or --scheduler (streaming keeps no voxels)",
-        )
-        _check(
-            not walls or c.terrain.unknown != "height",
-            "terrain.unknown",
-            c.terrain.unknown,
-            f"free or obstacle with world.geometry {w.geometry} (walls have one height)",
-        )
-        _check(
-            not walls or c.octree.grid == "occupancy",
-            "octree.grid",
-            c.octree.grid,
-            f"occupancy with world.geometry {w.geometry} (walls come from occupied cells)",
-        )
-        name = c.world.model_name
-        _check(
-            name is None or (name.replace("_", "").replace("-", "").isalnum()),
-            "world.model_name",
-            name,
-            "letters, digits, '_' and '-' only",
-        )
-        _check(
-            MIN_CELL <= c.image.resolution <= MAX_CELL,
-            "image.resolution",
-            c.image.resolution,
-            f"{MIN_CELL:g}..{MAX_CELL:g} m/pixel",
-        )
-        _check(
-            c.image.origin is None or len(c.image.origin) in (2, 3),
-            "image.origin",
-            c.image.origin,
-            "[x, y] or [x, y, yaw]",
-        )
-        cv = c.canvas
-        for name in ("width", "height"):
-            side = getattr(cv, name)
-            _check(
-                side is None or 0 < side <= MAX_SIDE,
-                f"canvas.{name}",
-                side,
-                f"1..{MAX_SIDE} cells",
-            )
-        for name in ("offset_x", "offset_y"):
-            shift = getattr(cv, name)
-            _check(abs(shift) <= MAX_SIDE, f"canvas.{name}", shift, f"within +-{MAX_SIDE} cells")
-        _check(c.max_pixels > 0, "max_pixels", c.max_pixels, "> 0")
-        _check(c.max_memory > 0, "max_memory", c.max_memory, "> 0 (MiB)")
-        if cv.width is not None and cv.height is not None:
-            _check(
-                cv.width * cv.height <= c.max_pixels,
-                "canvas.width",
-                (cv.width, cv.height),
-                f"width x height <= max_pixels ({c.max_pixels})",
-            )
-        o = c.octree
-        _check(
-            o.resolution is None or MIN_VOXEL <= o.resolution <= MAX_CELL,
-            "octree.resolution",
-            o.resolution,
-            f"{MIN_VOXEL:g}..{MAX_CELL:g} metres, or null (from the clouds' extent)",
-        )
-        for name in ("hit", "miss", "clamp_min", "clamp_max", "occupancy"):
-            _check(0 < getattr(o, name) < 1, f"octree.{name}", getattr(o, name), "in (0, 1)")
-        _check(o.miss < 0.5 < o.hit, "octree.hit/miss", (o.hit, o.miss), "miss < 0.5 < hit")
-        _check(o.clamp_min < o.clamp_max, "octree.clamp_min", o.clamp_min, "< clamp_max")
-        _check(
-            o.z_min is None or o.z_max is None or o.z_min <= o.z_max,
-            "octree.z_min",
-            o.z_min,
-            "<= z_max",
-        )
-        _check(
-            o.fill_max_distance is None or o.fill_max_distance > 0,
-            "octree.fill_max_distance",
-            o.fill_max_distance,
-            "> 0 metres, or null (4 cells, at least 1 m)",
-        )
-        sc = c.scans
-        lo = sc.local_origin
-        _check(
-            lo in LOCAL_ORIGINS
-            or (
-                isinstance(lo, list)
-                and len(lo) == 3
-                and all(isinstance(v, (int, float)) and abs(v) <= MAX_ORIGIN for v in lo)
+        for ok, key, value, want in (
+            (
+                not voxels or o.grid == "occupancy",
+                "octree.grid",
+                o.grid,
+                "occupancy with world.geometry voxels (the voxels themselves are the world)",
             ),
-            "scans.local_origin",
-            lo,
-            f"auto, none or [x, y, z] within {MAX_ORIGIN:g} of 0",
-        )
-        for name in ("mount", "pose"):
-            v = getattr(sc, name)
-            _check(v is None or len(v) == 6, f"scans.{name}", v, "[x, y, z, roll, pitch, yaw]")
-        _check(sc.max_gap > 0, "scans.max_gap", sc.max_gap, "> 0 seconds")
-        _check(
-            sc.outliers is None or 0 < sc.outliers <= 100,
-            "scans.outliers",
-            sc.outliers,
-            "in (0, 100] standard deviations, or null (off)",
-        )
-        _check(
-            1 <= sc.outlier_neighbours <= 1000,
-            "scans.outlier_neighbours",
-            sc.outlier_neighbours,
-            "1..1000",
-        )
-        _check(
-            sc.outliers is None or not (c.stream.enabled or c.stream.workers or c.stream.scheduler),
-            "scans.outliers",
-            sc.outliers,
-            "null with --stream, --workers or --scheduler (a streamed piece sees only its points)",
-        )
-        _check(
-            sc.las_classes is None or all(0 <= k <= 255 for k in sc.las_classes),
-            "scans.las_classes",
-            sc.las_classes,
-            "LAS classification codes, 0..255",
-        )
-        _check(
-            sc.start is None or sc.end is None or sc.start <= sc.end,
-            "scans.start",
-            sc.start,
-            "<= scans.end",
-        )
-        t = c.terrain
-        _check(
-            3 <= t.max_side <= MAX_SIDE + 1 and (t.max_side - 1) & (t.max_side - 2) == 0,
-            "terrain.max_side",
-            t.max_side,
-            f"2^n+1, 3..{MAX_SIDE + 1}",
-        )
-        _check(
-            1 <= c.output.map_max_side <= MAX_SIDE,
-            "output.map_max_side",
-            c.output.map_max_side,
-            f"1..{MAX_SIDE}",
-        )
-        st = c.stream
-        _check(1 <= st.chunk_points <= 1 << 30, "stream.chunk_points", st.chunk_points, "1..2^30")
-        _check(
-            1 <= st.tile_cells <= 1 << 14 and st.tile_cells & (st.tile_cells - 1) == 0,
-            "stream.tile_cells",
-            st.tile_cells,
-            "a power of two up to 16384",
-        )
-        _check(0 <= st.workers <= 1024, "stream.workers", st.workers, "0..1024")
-        _check(
-            st.scheduler is None or "://" in st.scheduler,
-            "stream.scheduler",
-            st.scheduler,
-            "an address such as tcp://HOST:8786",
-        )
-        _check(
-            not (st.workers and st.scheduler),
-            "stream.workers",
-            st.workers,
-            "0 when stream.scheduler is given (one or the other)",
-        )
-        _check(
-            c.dem.resolution is None or MIN_CELL <= c.dem.resolution <= MAX_CELL,
-            "dem.resolution",
-            c.dem.resolution,
-            f"{MIN_CELL:g}..{MAX_CELL:g} metres",
-        )
-        _check(
-            0 < c.dem.max_elevation <= MAX_ORIGIN,
-            "dem.max_elevation",
-            c.dem.max_elevation,
-            f"> 0 and <= {MAX_ORIGIN:g} metres",
-        )
+            (
+                not voxels or c.terrain.unknown == "free",
+                "terrain.unknown",
+                c.terrain.unknown,
+                "free with world.geometry voxels (unknown voxels are empty space)",
+            ),
+            (
+                not voxels or not c.stream.active,
+                "world.geometry",
+                w.geometry,
+                "not voxels with --stream, --workers or --scheduler (streaming keeps no voxels)",
+            ),
+            (
+                not walls or c.terrain.unknown != "height",
+                "terrain.unknown",
+                c.terrain.unknown,
+                f"free or obstacle with world.geometry {w.geometry} (walls have one height)",
+            ),
+            (
+                not walls or o.grid == "occupancy",
+                "octree.grid",
+                o.grid,
+                f"occupancy with world.geometry {w.geometry} (walls come from occupied cells)",
+            ),
+            (
+                c.canvas.width is None
+                or c.canvas.height is None
+                or c.canvas.width * c.canvas.height <= c.max_pixels,
+                "canvas.width",
+                (c.canvas.width, c.canvas.height),
+                f"width x height <= max_pixels ({c.max_pixels})",
+            ),
+            (o.miss < 0.5 < o.hit, "octree.hit/miss", (o.hit, o.miss), "miss < 0.5 < hit"),
+            (o.clamp_min < o.clamp_max, "octree.clamp_min", o.clamp_min, "< clamp_max"),
+            (
+                o.z_min is None or o.z_max is None or o.z_min <= o.z_max,
+                "octree.z_min",
+                o.z_min,
+                "<= z_max",
+            ),
+            (
+                sc.outliers is None or not c.stream.active,
+                "scans.outliers",
+                sc.outliers,
+                "null with --stream, --workers or --scheduler (a streamed piece sees only its "
+                "points)",
+            ),
+            (
+                sc.start is None or sc.end is None or sc.start <= sc.end,
+                "scans.start",
+                sc.start,
+                "<= scans.end",
+            ),
+            (
+                not (c.stream.workers and c.stream.scheduler),
+                "stream.workers",
+                c.stream.workers,
+                "0 when stream.scheduler is given (one or the other)",
+            ),
+        ):
+            _check(ok, key, value, want)
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -562,27 +532,42 @@ class Config:
         return dataclasses.replace(self, scans=dataclasses.replace(self.scans, insert=default))
 
 
-#: Ranges of settings whose absurd values would exhaust memory or lose all precision.
-MAX_FILTER = 99  #: filter window side, cells
-MAX_METRES = 1e5  #: terrain heights
-MIN_CELL, MAX_CELL = 1e-4, 1e5  #: pixel and voxel sizes, metres
-MIN_VOXEL = 1e-3  #: OctoMap keys are 16-bit: at 1 mm the octree spans 65 m
-MAX_SIDE = 1 << 20  #: canvas sides and shifts, heightmap and map tile sides, cells
-MAX_ORIGIN = 1e9  #: a local origin's coordinates (a projected CRS spans < 1e8 m)
+_HINTS: dict[type, dict[str, Any]] = {}
 
 
-def _check_choices(target: Any, prefix: str = "") -> None:
-    """Every field typed with a Literal of the vocabulary holds one of its values."""
-    hints = get_type_hints(type(target))
+def _hints(cls: type) -> dict[str, Any]:
+    """A section's field types, rules included (evaluated once per class)."""
+    if cls not in _HINTS:
+        _HINTS[cls] = get_type_hints(cls, include_extras=True)
+    return _HINTS[cls]
+
+
+def _unannotated(hint: Any) -> tuple[Any, tuple[Must, ...]]:
+    """A field's type without its rules, and its rules."""
+    if get_origin(hint) is Annotated:
+        base, *rules = get_args(hint)
+        return base, tuple(r for r in rules if isinstance(r, Must))
+    return hint, ()
+
+
+def _check_fields(target: Any, prefix: str = "") -> None:
+    """Every field of ``target`` (and of its sections) against its type's rules: a Literal of
+    the vocabulary holds one of its values; a value held (not None) passes its Must rules."""
     for f in fields(target):
         value = getattr(target, f.name)
+        where = f"{prefix}{f.name}"
         if dataclasses.is_dataclass(value):
-            _check_choices(value, f"{f.name}.")
-        elif get_origin(hints[f.name]) is Literal:
-            choices = get_args(hints[f.name])
+            _check_fields(value, f"{where}.")
+            continue
+        hint, rules = _unannotated(_hints(type(target))[f.name])
+        if get_origin(hint) is Literal:
+            choices = get_args(hint)
             # bool is an int: True must not pass for 1, nor 8.0 for 8.
             ok = any(value == v and type(value) is type(v) for v in choices)
-            _check(ok, f"{prefix}{f.name}", value, f"one of {choices}")
+            _check(ok, where, value, f"one of {choices}")
+        for rule in rules:
+            if value is not None:
+                _check(rule.ok(value), where, value, rule.want)
 
 
 def _check(ok: bool, name: str, value: object, want: str) -> None:
@@ -649,7 +634,7 @@ def _nest(dotted: str, value: Any) -> dict[str, Any]:
 
 
 def _apply(target: Any, doc: dict[str, Any], source: str, prefix: str = "") -> None:
-    hints = get_type_hints(type(target))
+    hints = _hints(type(target))
     names = {f.name for f in fields(target)}
     for key, value in doc.items():
         where = f"{prefix}{key}"
@@ -661,55 +646,56 @@ def _apply(target: Any, doc: dict[str, Any], source: str, prefix: str = "") -> N
                 raise ConfigError(f"{source}: '{where}' must be a mapping")
             _apply(current, value, source, f"{where}.")
         else:
-            setattr(target, key, _coerce(value, hints[key], where, source))
+            setattr(target, key, _coerce(value, _unannotated(hints[key])[0], where, source))
 
 
 def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
-    if get_origin(hint) is Literal:  # the vocabulary: its values' type; validate checks them
-        hint = type(get_args(hint)[0])
-    # A word of the vocabulary or a value (scans.local_origin: auto | [x, y, z]).
-    words = [a for a in get_args(hint) if get_origin(a) is Literal]
-    if isinstance(value, str) and words and isinstance(get_args(words[0])[0], str):
-        return value
-    text = str(hint)
+    """``value`` (from YAML or a flag) as the field's type ``hint``: the first of its kinds
+    (``float | None``, ``LocalOrigin | list[float]``) it converts to exactly; a word of the
+    vocabulary is taken as it is (validate checks it)."""
+    kinds = get_args(hint) if get_origin(hint) in (Union, types.UnionType) else (hint,)
     if value is None:
-        if "None" in text:
+        if type(None) in kinds:
             return None
         raise ConfigError(f"{source}: '{where}' may not be empty")
-    try:
-        if "bool" in text:
-            if isinstance(value, bool):
-                return value
-            raise TypeError
-        if "list[float]" in text:
-            if isinstance(value, (str, bytes)):
-                raise TypeError
-            return [_finite(v, where, source) for v in value]
-        if "list[int]" in text:
-            if isinstance(value, (str, bytes)):
-                raise TypeError
-            if any(isinstance(v, bool) or float(v) != int(v) for v in value):
-                raise TypeError
-            return [_bounded(int(v), where, source) for v in value]
-        if "list[str]" in text:
-            if isinstance(value, str):
-                raise TypeError
-            return [str(v) for v in value]
-        if "int" in text:
-            if isinstance(value, bool) or float(value) != int(value):
-                raise TypeError
-            return _bounded(int(value), where, source)
-        if "float" in text:
-            if isinstance(value, bool):
-                raise TypeError
-            return _finite(value, where, source)
-        if "str" in text:
-            return str(value)
-    except ConfigError:
-        raise
-    except (TypeError, ValueError, OverflowError):
-        pass
+    for kind in kinds:
+        try:
+            return _as(value, kind, where, source)
+        except (TypeError, ValueError, OverflowError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
+    text = " | ".join(getattr(k, "__name__", str(k)) for k in kinds)
     raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r:.60}; expected {text})")
+
+
+def _as(value: Any, kind: Any, where: str, source: str) -> Any:
+    """``value`` as one ``kind``, or TypeError / ValueError."""
+    if get_origin(kind) is Literal:  # the vocabulary: its values' type
+        kind = type(get_args(kind)[0])
+    if get_origin(kind) is list:
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+            raise TypeError
+        (item,) = get_args(kind)
+        return [_as(v, item, where, source) for v in value]
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+        raise TypeError
+    if kind is int:
+        if isinstance(value, bool) or float(value) != int(value):
+            raise TypeError
+        return _bounded(int(value), where, source)
+    if kind is float:
+        if isinstance(value, bool):
+            raise TypeError
+        return _finite(value, where, source)
+    if kind is str:
+        if isinstance(value, (list, dict)):
+            raise TypeError
+        return str(value)
+    if kind is type(None):
+        raise TypeError
+    raise TypeError(f"no conversion to {kind}")
 
 
 #: No setting is a number beyond this (metres, seconds, cells, points): larger values are

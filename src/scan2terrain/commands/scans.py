@@ -56,8 +56,7 @@ class Ingest:
 def streaming(cfg: Config) -> bool:
     """End points streamed into tiles (``stream.enabled``, implied by Dask workers or a
     scheduler) instead of the octree; refuses an explicit ray-casting request."""
-    st = cfg.stream
-    if not (st.enabled or st.workers or st.scheduler):
+    if not cfg.stream.active:
         return False
     if cfg.scans.insert == "raycast":
         raise ConfigError(

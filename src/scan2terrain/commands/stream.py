@@ -111,13 +111,7 @@ class Streamed:
 
 
 def lattice_for(cfg: Config) -> Lattice:
-    o = cfg.octree
-    return Lattice(
-        octree_resolution(cfg),
-        cfg.stream.tile_cells,
-        -math.inf if o.z_min is None else o.z_min,
-        math.inf if o.z_max is None else o.z_max,
-    )
+    return Lattice(octree_resolution(cfg), cfg.stream.tile_cells, *cfg.octree.z_band)
 
 
 def cloud_bounds(
@@ -370,8 +364,7 @@ def run(
     """Every chunk rasterized and merged: here, or on Dask with ``stream.workers`` or
     ``stream.scheduler``; for a bag, its recorded beams too. The result does not depend on
     which."""
-    st = cfg.stream
-    if st.workers or st.scheduler:
+    if cfg.stream.distributed:
         return _run_dask(chunks, job, cfg, progress)
     # Straight into the result (the same sums, no merge), reading ahead across chunks: a file
     # of one chunk is read while the previous one is rasterized.

@@ -4,7 +4,6 @@ the same world folder as map2world (commands.maps)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -162,8 +161,7 @@ def voxels_folder(
             keys, occupied, resolution, source=source, cfg=cfg, start=start, runs=runs,
             colours=colours,
         ).with_extra(extra)  # fmt: skip
-    z_min = -math.inf if o.z_min is None else o.z_min
-    z_max = math.inf if o.z_max is None else o.z_max
+    z_min, z_max = o.z_band
     if o.grid == "occupancy":
         grid = projection.project_occupancy(
             keys, occupied, resolution, z_min=z_min, z_max=z_max, runs=runs

@@ -100,8 +100,7 @@ def voxel_mesh_folder(
     plane = scan_plane(keys, occupied, runs, resolution)
     if plane is not None:  # its z extent in metres (the resolution may be coarsened below)
         plane_z = ((np.array(plane) - KEY_OFFSET + [0, 1]) * resolution).tolist()
-    z_min = -math.inf if o.z_min is None else o.z_min
-    z_max = math.inf if o.z_max is None else o.z_max
+    z_min, z_max = o.z_band
     centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
     solid = solid[(centre_z >= z_min) & (centre_z <= z_max)]
     if len(solid) == 0:
