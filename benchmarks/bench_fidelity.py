@@ -25,28 +25,28 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
 
-FIXTURES = ROOT / "fixtures" / "bags"
+from tests.fixtures import CCNY_DIR, EMBARK_ROS1_DIR, FUSE_DIR, LEG_TRACKER_DIR, ROOT, SICK_ROS1_DIR
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
 #: The bundled bags with scans, and the options that pose them.
 BAGS = {
-    "tb3 (LaserScan, odometry)": (FIXTURES / "bag1_fuse_tb3_sim_scan_odom", []),
+    "tb3 (LaserScan, odometry)": (FUSE_DIR, []),
     "ccny (LaserScan, fixed)": (
-        FIXTURES / "bag1_ccny_hokuyo_scan",
+        CCNY_DIR,
         ["--pose", "0", "0", "0.3", "0", "0", "0"],
     ),
     "sick lms1xx (LaserScan, fixed)": (
-        FIXTURES / "bag1_sick_lms1xx_radar_tf",
+        SICK_ROS1_DIR,
         ["--topic", "/sick_lms_1xx/scan", "--pose", "0", "0", "0.3", "0", "0", "0"],
     ),
     "leg tracker (LaserScan, fixed)": (
-        FIXTURES / "bag1_leg_tracker_room_scan",
+        LEG_TRACKER_DIR,
         ["--pose", "0", "0", "0.3", "0", "0", "0"],
     ),
     "embark luminar (PointCloud2, fixed)": (
-        FIXTURES / "bag1_embark_luminar_pointcloud",
+        EMBARK_ROS1_DIR,
         ["--topic", "/luminar_pointcloud", "--pose", "0", "0", "1.8", "0", "0", "0",
          "--insert", "endpoints", "--resolution", "0.2"],
     ),

@@ -20,8 +20,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-WILLOW = ROOT / "fixtures/maps/map_willow_garage_005/willow-full-0.05.yaml"
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
+
+from tests.fixtures import WILLOW
 
 
 def timed(run: Callable[[], object], runs: int) -> list[float]:

@@ -34,8 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-AUTZEN = ROOT / "fixtures/clouds/pc_laz_autzen_trim/autzen_trim.laz"
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
+
+from tests.fixtures import AUTZEN
+
 SIDE_M = 2000.0
 
 

@@ -14,16 +14,20 @@ once before timing, so numba's compilation (or cache load) is not counted.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
+
+from tests.fixtures import LEVINE, WAREHOUSE, WILLOW
+
 MAPS = {
-    "willow": ROOT / "fixtures/maps/map_willow_garage_005/willow-full-0.05.yaml",
-    "levine": ROOT / "fixtures/maps/map_levine_thinwalls/levine.yaml",
-    "warehouse": ROOT / "fixtures/maps/map_nav2_warehouse_003/warehouse.yaml",
+    "willow": WILLOW,
+    "levine": LEVINE,
+    "warehouse": WAREHOUSE,
 }
 HEIGHT = 2.0
 

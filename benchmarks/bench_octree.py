@@ -61,8 +61,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-ROOT = Path(__file__).resolve().parent.parent
-FR079 = ROOT / "fixtures/octomap/scan.dat.bz2"
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
+
+from tests.fixtures import FR079
+
 FR079_POINTS = 88_206
 
 #: The synthetic room: a hall, pillars and crates (axis-aligned boxes, metres).

@@ -46,10 +46,10 @@ import yaml
 from PIL import Image
 from scipy import ndimage
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests
 
-from tests.physics_harness import (  # noqa: E402
+from tests.fixtures import FR079, GEB079, LEVINE, TB3_MAP, WAREHOUSE, WILLOW
+from tests.physics_harness import (
     Body,
     Box,
     Robot,
@@ -60,16 +60,16 @@ from tests.physics_harness import (  # noqa: E402
 )
 
 MAPS = {
-    "willow": REPO / "fixtures/maps/map_willow_garage_005/willow-full-0.05.yaml",
-    "warehouse": REPO / "fixtures/maps/map_nav2_warehouse_003/warehouse.yaml",
-    "levine": REPO / "fixtures/maps/map_levine_thinwalls/levine.yaml",
-    "tb3": REPO / "fixtures/maps/map_tb3_world_mapsaver/map.yaml",
+    "willow": WILLOW,
+    "warehouse": WAREHOUSE,
+    "levine": LEVINE,
+    "tb3": TB3_MAP,
 }
 GEOMETRIES = ("heightmap", "mesh", "boxes", "polylines")
 #: Voxel worlds (--geometry voxels, issue 15): OctoMap's building and corridor scans.
 VOXEL_WORLDS = {
-    "geb079 voxels": ["octree2world", str(REPO / "fixtures/octomap/geb079.bt")],
-    "fr079 voxels": ["octree2world", str(REPO / "fixtures/octomap/scan.dat.bz2"),
+    "geb079 voxels": ["octree2world", str(GEB079)],
+    "fr079 voxels": ["octree2world", str(FR079),
                      "--resolution", "0.1"],
 }  # fmt: skip
 PLANE_WORLD = """<?xml version="1.0"?>

@@ -35,16 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
 
-from tests import slamworld as sw  # noqa: E402
-from tests.test_correct import aligned_errors, flat_scans  # noqa: E402
+from tests import slamworld as sw
+from tests.fixtures import FUSE_DIR, MIT
+from tests.slamworld import aligned_errors, flat_scans
 
-from scan2terrain.slam import planar, pose2  # noqa: E402
-
-MIT = ROOT / "fixtures/logs/raw_carmen_mit_csail/mit-csail.clf.bz2"
-TB3 = ROOT / "fixtures/bags/bag1_fuse_tb3_sim_scan_odom"
+from scan2terrain.slam import planar, pose2
 
 
 def _mit() -> tuple[np.ndarray, list[np.ndarray], float]:
@@ -144,7 +141,11 @@ def whole_runs(repeat: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rec = sw.simulate("corridor_loop")
         loop = rec.write_bag(Path(tmp) / "loop.bag")
-        inputs = {"mit-csail (CARMEN log)": MIT, "tb3 (bundled bag)": TB3, "corridor_loop": loop}
+        inputs = {
+            "mit-csail (CARMEN log)": MIT,
+            "tb3 (bundled bag)": FUSE_DIR,
+            "corridor_loop": loop,
+        }
         print(f"   {'recording':<26} {'off':>8} {'auto':>8} {'ratio':>6}  within 10 cm off -> auto")
         for label, path in inputs.items():
             times, reports = {}, {}

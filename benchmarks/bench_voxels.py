@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-GEB079 = ROOT / "fixtures/octomap/geb079.bt"
-FR079 = ROOT / "fixtures/octomap/scan.dat.bz2"
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the repository: tests.fixtures
+
+from tests.fixtures import FR079, GEB079
 
 
 def geb079_voxels() -> tuple[np.ndarray, float]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -704,6 +705,17 @@ def synthetic_room(
 
 McapCompression = Literal["zstd", "lz4", "none"]
 
+#: id -> (compression, summary, chunked)
+LAYOUTS: dict[str, tuple[McapCompression, bool, bool]] = {
+    "zstd": ("zstd", True, True),
+    "lz4": ("lz4", True, True),
+    "none": ("none", True, True),
+    "zstd-no-summary": ("zstd", False, True),
+    "lz4-no-summary": ("lz4", False, True),
+    "unchunked": ("none", True, False),
+    "unchunked-no-summary": ("none", False, False),
+}
+
 
 def ros1_bag_to_mcap(
     bag: Path,
@@ -765,6 +777,36 @@ def ros1_bag_to_mcap(
             writer.add_message(channels[conn.id], int(t_ns), bytes(raw), int(t_ns), seq)
         writer.finish()  # type: ignore[no-untyped-call]
     return out
+
+
+def first_chunk_data(data: bytes) -> int:
+    """Offset of the first chunk's compressed bytes in a file (after magic and header)."""
+    pos = 8
+    while True:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        if opcode == 0x06:  # chunk: times, size, crc, compression string, data length
+            (n,) = struct.unpack_from("<I", data, pos + 9 + 28)
+            return int(pos + 9 + 32 + n + 8)
+        pos += 9 + length
+
+
+def one_message_mcap(path: Path, channels: list[tuple[str, str, str, int | None]]) -> Path:
+    """A small MCAP: per channel (topic, message encoding, schema encoding, schema id or None
+    for a schema of its own), one message."""
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+
+    with path.open("wb") as f:
+        w = McapWriter(f, compression=CompressionType.NONE)
+        w.start(profile="", library="test")
+        for n, (topic, encoding, schema_encoding, given) in enumerate(channels):
+            schema_id = given
+            if schema_id is None:
+                schema_id = w.register_schema("pkg/Thing", schema_encoding, b"int32 x\n")
+            cid = w.register_channel(topic, encoding, schema_id)
+            w.add_message(cid, 1000 + n, b"\x01\x00\x00\x00", 1000 + n)
+        w.finish()  # type: ignore[no-untyped-call]
+    return path
 
 
 # --- Foxglove schemas in MCAP (issue 16) ------------------------------------------------------

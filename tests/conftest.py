@@ -1,4 +1,5 @@
-"""Shared test fixtures: paths to the real sample files, and small image writers."""
+"""Shared pytest fixtures (the real maps, parametrised) and a small map writer. The paths to the
+real sample files are in :mod:`tests.fixtures`."""
 
 from __future__ import annotations
 
@@ -7,18 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-FIXTURES = ROOT / "fixtures"
-MAPS = {
-    "willow": FIXTURES / "maps/map_willow_garage_005/willow-full-0.05.yaml",
-    "tb3": FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml",
-    "levine": FIXTURES / "maps/map_levine_thinwalls/levine.yaml",
-    "warehouse": FIXTURES / "maps/map_nav2_warehouse_003/warehouse.yaml",
-}
-IMAGES = {
-    "bowl_rgb": FIXTURES / "images/heightmap_png_bowl/heightmap_bowl.png",
-    "winding_valley": FIXTURES / "images/heightmap_png_winding_valley/heightmap.png",
-}
+from tests.fixtures import MAPS
 
 
 @pytest.fixture(params=sorted(MAPS), ids=sorted(MAPS))

@@ -1039,3 +1039,34 @@ def simulate(
         ranges=ranges,
         seed=seed,
     )
+
+
+# --- what the tests and benchmarks/bench_slam.py measure -------------------------------------
+
+
+def flat_scans(rec: Recording) -> list[NDArray[np.float64]]:
+    """Each scan's returns (N, 2) in the laser's frame."""
+    a = rec.laser.angles
+    out = []
+    for r in rec.ranges.astype(np.float64):
+        ok = np.isfinite(r) & (r >= rec.laser.range_min) & (r < rec.laser.range_max)
+        out.append(np.c_[r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
+    return out
+
+
+def aligned_errors(
+    poses: NDArray[np.float64], truth: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Translation (m) and yaw (deg) errors after the best rigid alignment of the whole
+    trajectory onto the truth (a SLAM estimate has no absolute frame: the usual ATE)."""
+    a, b = poses[:, :2], truth[:, :2]
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ma).T @ (b - mb))
+    r = (u @ vt).T
+    if np.linalg.det(r) < 0:
+        vt[-1] *= -1
+        r = (u @ vt).T
+    moved = (a - ma) @ r.T + mb
+    turn = math.atan2(r[1, 0], r[0, 0])
+    yaw = np.degrees(np.abs(wrap(poses[:, 2] + turn - truth[:, 2])))
+    return np.hypot(*(moved - b).T), yaw

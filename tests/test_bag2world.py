@@ -36,23 +36,22 @@ from tests.bagmaker import (
     write_bag,
 )
 from tests.carmen import RANGE_MAX, RANGE_MIN, carmen_to_bag, read_carmen
-from tests.conftest import FIXTURES
+from tests.fixtures import (
+    CCNY,
+    EMBARK_MCAP,
+    EMBARK_ROS1,
+    FUSE,
+    GRIDMAP,
+    LEG_TRACKER,
+    LEGACY,
+    NAV2,
+    SICK_DB3,
+    SICK_ROS1,
+)
 from tests.gazebo_harness import probe_world
 from tests.octree._octomap_ref import compare, import_octomap, octomap_tree
-from tests.test_gazebo_worlds import check_world
+from tests.world_checks import STATIONARY, check_world, normalised_outputs
 
-BAGS = FIXTURES / "bags"
-SICK_ROS1 = BAGS / "bag1_sick_lms1xx_radar_tf/rms_1xxx_lms_1xx_movement_off.bag"
-SICK_DB3 = BAGS / "bag2_derived_sick_lms1xx_db3"
-EMBARK_ROS1 = BAGS / "bag1_embark_luminar_pointcloud/test.bag"
-EMBARK_MCAP = BAGS / "bag2_derived_embark_luminar_mcap"
-FUSE = BAGS / "bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
-LEG_TRACKER = BAGS / "bag1_leg_tracker_room_scan/demo_stationary_simple_environment.bag"
-CCNY = BAGS / "bag1_ccny_hokuyo_scan/demo.bag"
-LEGACY = BAGS / "bag1_legacy_rosrecord_v12/demo_rosrecord_v1.2.bag"
-GRIDMAP = BAGS / "bag2_gridmap_db3_unknown_type"
-NAV2 = BAGS / "bag2_nav2_collision_mcap_zstd"
-STATIONARY = ["--pose", "0", "0", "0", "0", "0", "0"]
 #: What every synthetic-room map must reach (the issue's bar).
 MIN_IOU, MIN_FREE_AGREEMENT = 0.9, 0.98
 #: Of the truly free cells, at least this many must be known: free agreement is not vacuous.
@@ -309,33 +308,6 @@ def test_time_range_selects_scans(tmp_path: Path, capsys: pytest.CaptureFixture[
 
 
 # --- the real bag fixtures ---------------------------------------------------------------------
-
-
-def normalised_outputs(out: Path, source: Path) -> dict[str, bytes]:
-    """Every output file, keyed by its path with the model names replaced by ``MODEL``, and
-    with the names that depend on the input (model names, the input's file name) replaced in
-    text files; PNG images as their decoded pixels (the bytes depend on zlib)."""
-    models = sorted((p.name for p in (out / "models").iterdir()), key=len, reverse=True)
-    base = min(models, key=len)
-
-    def norm(text: str) -> str:
-        for name in models:
-            text = text.replace(name, name.replace(base, "MODEL"))
-        return text.replace(source.name, "SOURCE")
-
-    files: dict[str, bytes] = {}
-    for p in sorted(out.rglob("*")):
-        if not p.is_file():
-            continue
-        key = norm(str(p.relative_to(out)))
-        if p.suffix == ".png":
-            with Image.open(p) as im:
-                files[key] = im.mode.encode() + repr(im.size).encode() + im.tobytes()
-        elif p.suffix in (".sdf", ".world", ".config", ".yaml"):
-            files[key] = norm(p.read_text()).encode()
-        else:
-            files[key] = p.read_bytes()
-    return files
 
 
 TWINS = {

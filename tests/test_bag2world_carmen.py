@@ -19,8 +19,17 @@ from scan2terrain.readers.points import hits_of
 from scan2terrain.readers.scans import plan_bag, posed_scans
 from scan2terrain.readers.tracks import read_tum
 from scan2terrain.types import ScanCounts
-from tests.carmen import DEFAULT_LOG, read_carmen
-from tests.readers.test_carmen import ODOM, RANGES, T0, compose, damaged_log, flaser, write
+from tests.carmen import (
+    DEFAULT_LOG,
+    ODOM,
+    RANGES,
+    T0,
+    compose,
+    damaged_log,
+    flaser,
+    read_carmen,
+    write,
+)
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:

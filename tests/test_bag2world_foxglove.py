@@ -28,9 +28,8 @@ from tests.bagmaker import (
     synthetic_room,
     write_foxglove_mcap,
 )
-from tests.conftest import MAPS
-from tests.readers.test_mcap_ros1 import EMBARK
-from tests.test_bag2world import STATIONARY, normalised_outputs
+from tests.fixtures import EMBARK_ROS1, MAPS
+from tests.world_checks import STATIONARY, normalised_outputs
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
@@ -204,8 +203,8 @@ def test_foxglove_pointcloud_gives_the_world_of_the_bag(
     # as the ROS1 MCAP twin: 0.5 m voxels, one fixed pose
     options: list[object] = ["--topic", "/luminar_pointcloud", *STATIONARY]
     options += ["--resolution", "0.5", "--no-preview"]
-    mcap = foxglove(EMBARK, tmp_path, case)
-    same_world(capsys, tmp_path, ["bag2world", EMBARK], EMBARK, mcap, options)
+    mcap = foxglove(EMBARK_ROS1, tmp_path, case)
+    same_world(capsys, tmp_path, ["bag2world", EMBARK_ROS1], EMBARK_ROS1, mcap, options)
 
 
 def grid_messages(yaml: Path) -> list[tuple[str, str, int, Any]]:
@@ -374,7 +373,7 @@ def test_foxglove_elevation_grid_becomes_terrain_at_its_heights(
     from scan2terrain.cli import COMMAND_DEFAULTS
     from scan2terrain.commands.scans import bag2world
     from scan2terrain.config import load_config
-    from tests.test_dem2world import ground
+    from tests.world_checks import ground
 
     res, x0, y0, z0 = 0.25, 3.0, -2.0, 0.5
     rows, cols = 48, 64

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from scan2terrain.cli import main
-from tests.bagmaker import ros1_bag_to_mcap
-from tests.readers.test_mcap_ros1 import EMBARK, FUSE, LAYOUTS, _first_chunk_data, _mcap
-from tests.test_bag2world import STATIONARY, normalised_outputs
+from tests.bagmaker import LAYOUTS, first_chunk_data, one_message_mcap, ros1_bag_to_mcap
+from tests.fixtures import EMBARK_ROS1, FUSE
+from tests.world_checks import STATIONARY, normalised_outputs
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
@@ -37,7 +37,7 @@ CASES = {
     "fuse-stream": (FUSE, ["--end", "30", "--stream"], ["zstd", "lz4-no-summary"]),
     # as the ROS 2 twin in test_bag2world: 0.5 m voxels keep the heightmap at 1025 px
     "embark-pointcloud2": (
-        EMBARK,
+        EMBARK_ROS1,
         ["--topic", "/luminar_pointcloud", *STATIONARY, "--grid", "height", "--resolution", "0.5"],
         ["zstd", "none"],
     ),
@@ -103,14 +103,14 @@ def _bad(tmp: Path) -> dict[str, tuple[Path, str]]:
     half.write_bytes(data[: len(data) // 2])
     cases["truncated"] = (half, "the MCAP file is truncated or damaged: its end marker is missing")
     crc = bytearray(data)
-    at = _first_chunk_data(data) + 100
+    at = first_chunk_data(data) + 100
     crc[at] ^= 0xFF
     bad = tmp / "crc.mcap"
     bad.write_bytes(bytes(crc))
     cases["chunk crc"] = (bad, "fails its CRC check")
-    flat = _mcap(tmp / "flat.mcap", [("/scan", "flatbuffer", "flatbuffer", None)])
+    flat = one_message_mcap(tmp / "flat.mcap", [("/scan", "flatbuffer", "flatbuffer", None)])
     cases["unknown schema encoding"] = (flat, "no channel of this MCAP file can be read: /scan:")
-    lost = _mcap(tmp / "lost.mcap", [("/scan", "ros1", "ros1msg", 9)])
+    lost = one_message_mcap(tmp / "lost.mcap", [("/scan", "ros1", "ros1msg", 9)])
     cases["missing schema"] = (lost, "names schema 9, which is missing")
     return cases
 

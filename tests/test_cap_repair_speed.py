@@ -15,7 +15,7 @@ from scan2terrain.geometry._cap_repair import _Cap
 from scan2terrain.geometry.mesh import extrude
 from scan2terrain.geometry.outlines import trace
 from scan2terrain.types import Pose2D
-from tests.geometry.test_mesh import check_solid
+from tests.geometry.shapes import check_solid
 
 Tri = tuple[int, int, int]
 

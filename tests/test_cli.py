@@ -12,7 +12,20 @@ import yaml
 from PIL import Image
 
 from scan2terrain.cli import main
-from tests.conftest import FIXTURES, IMAGES, MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import (
+    CLOUDS,
+    FR079,
+    GEB079,
+    HDL_PCD,
+    IMAGES,
+    MAPS,
+    ROOT,
+    SFBAY,
+    SIMPLE_LAS,
+    TB3_MAP,
+    TERRAIN,
+)
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
@@ -281,9 +294,9 @@ def test_image_invert_and_extend_keeps_added_cells_at_the_floor(
     [
         ["map2world", str(MAPS["tb3"]), "--geometry", "heightmap"],
         ["image2world", str(IMAGES["bowl_rgb"])],
-        ["dem2world", str(FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif")],
-        ["octree2world", str(FIXTURES / "octomap/geb079.bt"), "--grid", "height"],
-        ["cloud2world", str(FIXTURES / "clouds/pc_las_simple_twin/simple.las"), "--grid", "height"],
+        ["dem2world", str(SFBAY)],
+        ["octree2world", str(GEB079), "--grid", "height"],
+        ["cloud2world", str(SIMPLE_LAS), "--grid", "height"],
     ],
     ids=["map2world", "image2world", "dem2world", "octree2world", "cloud2world"],
 )
@@ -309,7 +322,7 @@ def test_cloud_report_keeps_the_writers_notes(
     notes)."""
     config = tmp_path / "tiles.yaml"
     config.write_text("terrain: {max_side: 129}\n")
-    cloud = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    cloud = HDL_PCD
     argv = ["cloud2world", cloud, "-o", tmp_path / "w", "--grid", "height"]
     argv += ["--resolution", "0.2", "--config", config, *(["--stream"] if stream else [])]
     code, out, err = run(capsys, *argv)
@@ -341,7 +354,7 @@ def test_octree_file_written_is_reported(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "w"
-    scan = FIXTURES / "octomap/scan.dat.bz2"
+    scan = FR079
     code, stdout, err = run(capsys, "octree2world", scan, "-o", out, "--resolution", "0.2")
     assert code == 0, err
     assert f"OctoMap's .bt (octovis, octomap_server, octree2world): {out}/octree.bt" in stdout
@@ -353,7 +366,7 @@ def test_grid_too_large_is_refused_before_allocating(
 ) -> None:
     """Clouds in different coordinate systems (a UTM LAZ and a local XYZ) span ~10^11 cells:
     one line, exit 2, on the octree and the streamed path (was a 2 TiB MemoryError, exit 1)."""
-    clouds = FIXTURES / "clouds"
+    clouds = CLOUDS
     laz = clouds / "pc_laz_autzen_trim/autzen_trim.laz"
     xyz = clouds / "pc_xyz_street_lidar/multisensor_lidar.xyz"
     argv = ["cloud2world", laz, xyz, "-o", tmp_path / "w", "--grid", "height"]
@@ -405,7 +418,7 @@ def test_closed_stdout_pipe_is_not_an_error(tmp_path: Path) -> None:
             "-c",
             script,
             "map2world",
-            str(FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"),
+            str(TB3_MAP),
             "-o",
             str(out),
         ],
@@ -436,7 +449,7 @@ def test_every_error_is_one_line(
     code = main(
         [
             "map2world",
-            str(FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"),
+            str(TB3_MAP),
             "-o",
             str(tmp_path / "w"),
         ]
@@ -452,7 +465,7 @@ def test_every_error_is_one_line(
 def test_image2world_refuses_a_dem_and_names_dem2world(tmp_path: Path, name: str) -> None:
     """Run as a user runs it (no pytest log handler): tifffile's complaint about sfbay's
     GDAL_NODATA tag must not reach stderr either."""
-    (dem,) = (FIXTURES / "terrain" / name).glob("*.tif")
+    (dem,) = (TERRAIN / name).glob("*.tif")
     r = subprocess.run(
         [
             sys.executable,
@@ -489,7 +502,7 @@ def test_version_has_one_source_the_package_metadata() -> None:
 
     import scan2terrain
 
-    root = Path(__file__).resolve().parent.parent
+    root = ROOT
     declared = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
     done = subprocess.run(
         [sys.executable, "-m", "scan2terrain", "--version"],

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from scan2terrain.cli import main
-from tests.conftest import FIXTURES, MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import MAPS, SFBAY, SIMPLE_LAS
 
 TB3 = str(MAPS["tb3"])
 
@@ -91,7 +92,7 @@ def test_config_errors_name_the_flag(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert main(["map2world", TB3, "-o", out, "--config", str(cfg)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--geometry voxels" in err and "world.geometry" in err, err
-    cloud = str(FIXTURES / "clouds/pc_las_simple_twin/simple.las")
+    cloud = str(SIMPLE_LAS)
     assert main(["cloud2world", cloud, "-o", out, "--insert", "raycast", "--stream"]) == 2
     err = capsys.readouterr().err
     assert "--insert raycast" in err, err
@@ -131,7 +132,7 @@ def test_gz_only_runs_print_no_classic_lines(
         text = capsys.readouterr().out
         assert "Classic" not in text and "classic" not in text, text
         assert "gz sim" in text
-    dem = str(FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif")
+    dem = str(SFBAY)
     assert main(["dem2world", dem, "-o", str(tmp_path / "dem")]) == 0  # gz-only by default
     text = capsys.readouterr().out
     assert "Classic" not in text and "gz sim" in text, text

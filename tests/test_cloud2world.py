@@ -19,15 +19,9 @@ from PIL import Image
 
 from scan2terrain.cli import main
 from scan2terrain.config import two_digits_up
-from tests.conftest import FIXTURES
+from tests.fixtures import AUTZEN, HDL_PCD, HDL_PLY, SIMPLE_LAS, SIMPLE_LAZ
 from tests.gazebo_harness import probe_world, terrain_height
 
-CLOUDS = FIXTURES / "clouds"
-HDL_PCD = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
-HDL_PLY = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/target.ply"
-LAS = CLOUDS / "pc_las_simple_twin/simple.las"
-LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
-AUTZEN = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
 KEY_OFFSET = 32768
 
 
@@ -65,7 +59,7 @@ TWINS = {
         ["--resolution", "0.2", "--z-min", "-1.5", "--z-max", "1.5"],
     ),
     # 1,065 points over 3.4 x 4.6 km (feet): sparse, so no filter (a median would erase them).
-    "las-laz": (LAS, LAZ, ["--resolution", "20", "--grid", "height", "--no-filter"]),
+    "las-laz": (SIMPLE_LAS, SIMPLE_LAZ, ["--resolution", "20", "--grid", "height", "--no-filter"]),
 }
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from scan2terrain.config import Config, load_config
 from scan2terrain.errors import ConfigError
-from tests.conftest import ROOT
+from tests.fixtures import ROOT
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.yaml")), ids=lambda p: p.name)

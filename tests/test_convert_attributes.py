@@ -13,12 +13,8 @@ import pytest
 
 from scan2terrain.cli import main
 from scan2terrain.readers.cloudfile import read_cloud
-from tests.conftest import FIXTURES
+from tests.fixtures import AUTZEN, AUTZEN_CSV, HDL_PCD, SIMPLE_LAS
 
-AUTZEN = FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz"  # LAS 1.2 pf 3, RGB, CRS
-SIMPLE = FIXTURES / "clouds/pc_las_simple_twin/simple.las"  # pf 3, no records
-HDL_PCD = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"  # x y z intensity F 4
-AUTZEN_CSV = FIXTURES / "clouds/pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"
 FORMAT3 = [
     "intensity", "return_number", "number_of_returns", "scan_direction_flag",
     "edge_of_flight_line", "classification", "synthetic", "key_point", "withheld",
@@ -217,11 +213,11 @@ def test_several_files_keep_what_they_share(
     want = records(AUTZEN)
     np.testing.assert_array_equal(got.points.array, np.concatenate([want, want]))
     assert crs_records(twice) == crs_records(AUTZEN)
-    report = convert(capsys, AUTZEN, SIMPLE, tmp_path / "mixed.las")
+    report = convert(capsys, AUTZEN, SIMPLE_LAS, tmp_path / "mixed.las")
     assert "the files' LAS records (the CRS) differ: none kept" in report
     mixed = laspy.read(tmp_path / "mixed.las")
     assert mixed.header.vlrs == [] and mixed.header.point_format.id == 3
-    np.testing.assert_array_equal(mixed.points.array, np.concatenate([want, records(SIMPLE)]))
+    np.testing.assert_array_equal(mixed.points.array, np.concatenate([want, records(SIMPLE_LAS)]))
 
 
 @pytest.mark.parametrize("suffix", [".las", ".laz", ".pcd", ".ply", ".csv", ".xyz"])

@@ -27,12 +27,8 @@ from tests.bagmaker import (
     synthetic_room,
     write_bag,
 )
-from tests.conftest import FIXTURES
+from tests.fixtures import GRIDMAP, HDL_PCD, SICK_ROS1, SIMPLE_LAS
 
-HDL_PCD = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
-LAS = FIXTURES / "clouds/pc_las_simple_twin/simple.las"
-SICK = FIXTURES / "bags/bag1_sick_lms1xx_radar_tf/rms_1xxx_lms_1xx_movement_off.bag"
-GRIDMAP = FIXTURES / "bags/bag2_gridmap_db3_unknown_type"
 T0 = 1_700_000_000_000_000_000
 
 
@@ -128,10 +124,10 @@ def test_las_to_laz_keeps_georeferenced_coordinates(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     target = tmp_path / "simple.laz"
-    code, stdout, err = run(capsys, "convert", LAS, target)
+    code, stdout, err = run(capsys, "convert", SIMPLE_LAS, target)
     assert code == 0, err
     assert "local origin" not in stdout  # a format conversion moves nothing
-    a, b = laspy.read(LAS), laspy.read(target)
+    a, b = laspy.read(SIMPLE_LAS), laspy.read(target)
     assert b.header.point_count == a.header.point_count == 1065
     assert b.header.are_points_compressed and not a.header.are_points_compressed
     np.testing.assert_allclose(
@@ -190,7 +186,7 @@ def test_inspect_odometry_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 def test_inspect_says_why_bag2world_would_stop(capsys: pytest.CaptureFixture[str]) -> None:
     """The SICK bag has four scan topics: inspect lists them and the option that picks one;
     with --topic and --fixed-frame it shows the plan instead."""
-    code, stdout, err = run(capsys, "inspect", SICK)
+    code, stdout, err = run(capsys, "inspect", SICK_ROS1)
     assert code == 0 and err == ""
     assert "    /sick_lms_1xx/scan                          89  sensor_msgs/msg/LaserScan" in stdout
     assert "    /radar                                      34  sick_scan/msg/RadarScan" in stdout
@@ -201,7 +197,9 @@ def test_inspect_says_why_bag2world_would_stop(capsys: pytest.CaptureFixture[str
         "/cloud_radar_track (PointCloud2); /sick_lms_1xx/scan (LaserScan)"
     )
     for topic in ("/sick_lms_1xx/scan", "sick_lms_1xx/scan"):  # the same topic (issue 25)
-        code, stdout, err = run(capsys, "inspect", SICK, "--topic", topic, "--fixed-frame", "cloud")
+        code, stdout, err = run(
+            capsys, "inspect", SICK_ROS1, "--topic", topic, "--fixed-frame", "cloud"
+        )
         assert code == 0 and err == ""
         assert stdout.splitlines()[-3:] == [
             "    topics /sick_lms_1xx/scan: chosen (--topic)",

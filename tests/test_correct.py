@@ -22,6 +22,7 @@ from scan2terrain.slam import planar, pose2
 from scan2terrain.slam.graph import Closure, PoseGraph
 from scan2terrain.types import PoseCorrection
 from tests import slamworld as sw
+from tests.fixtures import MIT_DIR
 
 RES = 0.05
 
@@ -32,42 +33,14 @@ def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
     return code, out + err
 
 
-def flat_scans(rec: sw.Recording) -> list[NDArray[np.float64]]:
-    """Each scan's returns (N, 2) in the laser's frame."""
-    a = rec.laser.angles
-    out = []
-    for r in rec.ranges.astype(np.float64):
-        ok = np.isfinite(r) & (r >= rec.laser.range_min) & (r < rec.laser.range_max)
-        out.append(np.c_[r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
-    return out
-
-
-def aligned_errors(
-    poses: NDArray[np.float64], truth: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Translation (m) and yaw (deg) errors after the best rigid alignment of the whole
-    trajectory onto the truth (a SLAM estimate has no absolute frame: the usual ATE)."""
-    a, b = poses[:, :2], truth[:, :2]
-    ma, mb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((a - ma).T @ (b - mb))
-    r = (u @ vt).T
-    if np.linalg.det(r) < 0:
-        vt[-1] *= -1
-        r = (u @ vt).T
-    moved = (a - ma) @ r.T + mb
-    turn = math.atan2(r[1, 0], r[0, 0])
-    yaw = np.degrees(np.abs(pose2.wrap(poses[:, 2] + turn - truth[:, 2])))
-    return np.hypot(*(moved - b).T), yaw
-
-
 @pytest.mark.parametrize("scene", ["corridor_loop", "rooms"])
 def test_drifting_odometry_is_corrected_to_the_truth(scene: str) -> None:
     rec = sw.simulate(scene)
-    raw, _ = aligned_errors(rec.odom_laser_poses, rec.laser_poses)
+    raw, _ = sw.aligned_errors(rec.odom_laser_poses, rec.laser_poses)
     assert raw.max() > 0.5  # the odometry really drifts
-    result = planar.correct(rec.odom_laser_poses, flat_scans(rec))
+    result = planar.correct(rec.odom_laser_poses, sw.flat_scans(rec))
     assert result.accepted >= 3  # the loop was closed
-    err, yaw = aligned_errors(result.poses, rec.laser_poses)
+    err, yaw = sw.aligned_errors(result.poses, rec.laser_poses)
     assert np.percentile(err, 95) <= 0.02, (np.percentile(err, 95), err.max())
     assert err.mean() <= 0.015
     assert yaw.max() <= 0.5
@@ -82,13 +55,13 @@ def test_look_alike_corridors_are_not_closed() -> None:
     """Two corridors 4 m apart with the same niches at the same places: a closure between
     them would pull one onto the other. None is kept, and the trajectory stays true."""
     rec = sw.simulate("parallel_corridors")
-    result = planar.correct(rec.odom_laser_poses, flat_scans(rec))
+    result = planar.correct(rec.odom_laser_poses, sw.flat_scans(rec))
     assert result.candidates > 0  # searches were made
     for c in result.closures:
         truth = pose2.between(rec.laser_poses[c.earlier], rec.laser_poses[c.later])
         wrong = np.hypot(*(c.relative[:2] - truth[:2])) > 0.5
         assert not (wrong and c.kept), (c, truth)
-    err, yaw = aligned_errors(result.poses, rec.laser_poses)
+    err, yaw = sw.aligned_errors(result.poses, rec.laser_poses)
     assert err.max() <= 0.1 and yaw.max() <= 1.0
 
 
@@ -186,7 +159,7 @@ def test_bag2world_world_matches_the_truth_within_a_cell(
     got = np.loadtxt(worlds["auto"] / "trajectory.tum")
     raw = np.loadtxt(worlds["auto"] / "trajectory_raw.tum")
     assert np.allclose(raw[:, 1:3], rec.odom_laser_poses[:, :2], atol=1e-4)
-    err, _ = aligned_errors(np.c_[got[:, 1:3], np.zeros(len(got))], rec.laser_poses * [1, 1, 0])
+    err, _ = sw.aligned_errors(np.c_[got[:, 1:3], np.zeros(len(got))], rec.laser_poses * [1, 1, 0])
     assert np.percentile(err, 95) <= 0.02
     assert not (worlds["off"] / "trajectory_raw.tum").exists()
 
@@ -301,7 +274,7 @@ def test_mit_csail_replays_clearly_better_corrected(
 ) -> None:
     """The real MIT CSAIL log (raw odometry, 1,988 scans): the corrected world reproduces
     far more of the recorded beams than the odometry's."""
-    log = Path(__file__).resolve().parent.parent / "fixtures/logs/raw_carmen_mit_csail"
+    log = MIT_DIR
     code, report = run(capsys, "inspect", log / "mit-csail.clf.bz2")
     assert (
         code == 0

@@ -22,8 +22,10 @@ from scan2terrain.config import load_config
 from scan2terrain.errors import ConfigError
 from scan2terrain.readers.dem import Dem, read_dem
 from scan2terrain.world.folder import Result
-from tests.gazebo_harness import ProbeError, probe_world, terrain_height
-from tests.readers.test_dem import GZ_SFBAY, MOON, SFBAY, write_geotiff
+from tests.fixtures import GZ_SFBAY, MOON, SFBAY
+from tests.gazebo_harness import ProbeError, probe_world
+from tests.geotiff import write_geotiff
+from tests.world_checks import ground
 
 
 def build(source: Path, out: Path, **overrides: object) -> Result:
@@ -38,21 +40,6 @@ def sample_centres(dem: Dem) -> tuple[np.ndarray, np.ndarray]:
     x = (np.arange(cols) + 0.5) * px - cols * px / 2
     y = (np.arange(rows) + 0.5) * py - rows * py / 2
     return np.meshgrid(x, y)
-
-
-def ground(result: Result, tmp: Path, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Ground height at world (x, y) in the one world of ``result``, as gz-common builds it."""
-    (w,) = result.worlds
-    sim = w.placement.simulator
-    version, probes = probe_world(w.world, [w.models], tmp / f"probe_{sim}")
-    assert version  # parsed strictly by SDFormat
-    (col,) = [p for p in probes if p.kind == "collision"]
-    (vis,) = [p for p in probes if p.kind == "visual"]
-    if sim == "gz":
-        assert vis.pos == pytest.approx(col.pose[:3])
-    got = terrain_height(col, x, y, sim)
-    assert isinstance(got, np.ndarray)
-    return got
 
 
 def test_sfbay_corners_land_at_gz_commons_elevations(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from scan2terrain.cli import build_parser, main
-from tests.conftest import ROOT
+from tests.fixtures import ROOT
 
 
 def shell_lines(text: str) -> list[str]:

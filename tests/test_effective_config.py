@@ -10,9 +10,7 @@ import pytest
 import yaml
 
 from scan2terrain.cli import main
-from tests.conftest import FIXTURES
-
-TB3 = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom"
+from tests.fixtures import FUSE_DIR
 
 
 def written(out: Path) -> dict[str, dict[str, object]]:
@@ -27,7 +25,7 @@ def test_bag2world_names_how_the_scans_went_in(
     tmp_path: Path, extra: list[str], insert: str
 ) -> None:
     out = tmp_path / "w"
-    args = ["bag2world", str(TB3), "-o", str(out), "--correct", "off", "--no-fidelity", "-q"]
+    args = ["bag2world", str(FUSE_DIR), "-o", str(out), "--correct", "off", "--no-fidelity", "-q"]
     assert main([*args, *extra]) == 0
     cfg = written(out)
     assert cfg["scans"]["insert"] == insert
@@ -41,3 +39,18 @@ def test_cloud2world_names_end_points(tmp_path: Path) -> None:
     out = tmp_path / "w"
     assert main(["cloud2world", str(cloud), "-o", str(out), "--resolution", "0.1", "-q"]) == 0
     assert written(out)["scans"]["insert"] == "endpoints"
+
+
+@pytest.mark.parametrize("extra", [[], ["--stream"]])
+def test_bag2world_names_how_the_scans_were_posed(tmp_path: Path, extra: list[str]) -> None:
+    """scans.poses and scans.correct: auto are written as the source used and the decision
+    taken; a rerun with the written config poses the scans the same way."""
+    out, again = tmp_path / "w", tmp_path / "again"
+    args = ["bag2world", str(FUSE_DIR), "--no-fidelity", "--no-preview", "-q", *extra]
+    assert main([*args, "-o", str(out)]) == 0
+    scans = written(out)["scans"]
+    assert scans["poses"] in ("tf", "odom") and scans["correct"] in ("on", "off"), scans
+    assert main([*args, "-o", str(again), "--config", str(out / "scan2terrain.yaml")]) == 0
+    assert written(again) == written(out)
+    for name in ("map/map.pgm", "spawn.yaml"):
+        assert (again / name).read_bytes() == (out / name).read_bytes()

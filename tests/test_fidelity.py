@@ -18,7 +18,7 @@ import yaml
 from numpy.typing import NDArray
 
 from scan2terrain.cli import main
-from tests.conftest import FIXTURES
+from tests.fixtures import FR079, FUSE_DIR, NAV2
 
 #: Cells of the exact rooms: a binary fraction, so cell edges are exact floats.
 RES = 0.125
@@ -27,9 +27,6 @@ ROOM = (-3.0, -2.0, 3.0, 2.0)
 #: Hits are recorded this far into the surface they hit (metres): a point exactly on a voxel
 #: boundary belongs to the voxel on its upper side, which may be the free one.
 INTO = 0.0005
-
-TB3 = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom"
-FR079 = FIXTURES / "octomap/scan.dat.bz2"
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, str]:
@@ -338,7 +335,7 @@ def test_a_recording_with_no_scans_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     world = hand_world(tmp_path)
-    nav2 = FIXTURES / "bags/bag2_nav2_collision_mcap_zstd"
+    nav2 = NAV2
     out = tmp_path / "f"
     code, stdout, err = run(capsys, "fidelity", world, nav2, "-o", out)
     assert code == 2 and stdout == "" and len(err.splitlines()) == 1, err
@@ -353,7 +350,7 @@ def test_poses_that_do_not_cover_the_scans_are_refused(
     tum.write_text("1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n")
     out = tmp_path / "f"
     code, stdout, err = run(
-        capsys, "fidelity", hand_world(tmp_path), TB3, "-o", out, "--trajectory", tum
+        capsys, "fidelity", hand_world(tmp_path), FUSE_DIR, "-o", out, "--trajectory", tum
     )
     assert code == 2 and stdout == "" and len(err.splitlines()) == 1, err
     assert "without a pose" in err
@@ -369,7 +366,7 @@ def test_bag2world_writes_the_replay_and_reruns_give_the_same_bytes(
     outs = []
     for k in range(2):
         out = tmp_path / f"w{k}"
-        code, stdout, err = run(capsys, "bag2world", TB3, "-o", out)
+        code, stdout, err = run(capsys, "bag2world", FUSE_DIR, "-o", out)
         assert code == 0, err
         outs.append((out, stdout))
     (a, report), (b, _) = outs
@@ -391,7 +388,7 @@ def test_no_fidelity_leaves_the_replay_out_but_keeps_the_trajectory(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "w"
-    code, stdout, err = run(capsys, "bag2world", TB3, "-o", out, "--no-fidelity")
+    code, stdout, err = run(capsys, "bag2world", FUSE_DIR, "-o", out, "--no-fidelity")
     assert code == 0, err
     assert (out / "trajectory.tum").is_file()
     assert not (out / "fidelity.yaml").exists() and not (out / "fidelity.png").exists()
@@ -403,7 +400,9 @@ def test_stream_gives_the_same_replay(tmp_path: Path, capsys: pytest.CaptureFixt
     for how in ("default", "stream"):
         out = tmp_path / how
         extra = ["--stream"] if how == "stream" else []
-        code, _, err = run(capsys, "bag2world", TB3, "-o", out, "--insert", "endpoints", *extra)
+        code, _, err = run(
+            capsys, "bag2world", FUSE_DIR, "-o", out, "--insert", "endpoints", *extra
+        )
         assert code == 0, err
         paths[how] = out
     for name in ("fidelity.yaml", "fidelity.png", "trajectory.tum", "map/map.pgm"):
@@ -415,7 +414,9 @@ def test_dask_gives_the_same_replay(tmp_path: Path, capsys: pytest.CaptureFixtur
     paths = {}
     for how, extra in (("default", []), ("dask", ["--workers", "2"])):
         out = tmp_path / how
-        code, _, err = run(capsys, "bag2world", TB3, "-o", out, "--insert", "endpoints", *extra)
+        code, _, err = run(
+            capsys, "bag2world", FUSE_DIR, "-o", out, "--insert", "endpoints", *extra
+        )
         assert code == 0, err
         paths[how] = out
     for name in ("fidelity.yaml", "fidelity.png", "trajectory.tum"):

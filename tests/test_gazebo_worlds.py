@@ -20,71 +20,17 @@ from scan2terrain import grids
 from scan2terrain.commands import maps
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
-from scan2terrain.types import OccupancyGrid
 from scan2terrain.world.folder import Result, WorldOutput
-from tests.conftest import IMAGES, MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import IMAGES, MAPS
 from tests.gazebo_harness import probe_world, terrain_height
-
-H = 2.0  # wall height used throughout
-
-
-def uniform(data: np.ndarray, radius: int = 1) -> np.ndarray:
-    """Cells whose (2 radius + 1)^2 neighbourhood holds one value (border cells excluded)."""
-    h, w = data.shape
-    core = data[radius : h - radius, radius : w - radius]
-    same = np.ones(core.shape, dtype=bool)
-    for dr in range(-radius, radius + 1):
-        for dc in range(-radius, radius + 1):
-            same &= data[radius + dr : h - radius + dr, radius + dc : w - radius + dc] == core
-    out = np.zeros(data.shape, dtype=bool)
-    out[radius : h - radius, radius : w - radius] = same
-    return out
-
-
-def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
-    rows, cols = np.indices(grid.shape)
-    return grid.origin.transform((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
+from tests.world_checks import H, check_world
 
 
 def build(source: Path, out: Path, *, command: str = "map2world", **overrides: object) -> Result:
     cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
     run = maps.map2world if command == "map2world" else maps.image2world
     return run(source, out, cfg)
-
-
-def check_world(
-    result: Result,
-    reference: OccupancyGrid,
-    tmp: Path,
-    *,
-    radius: int = 1,
-    unknown_level: float = 0.0,
-) -> dict[str, int]:
-    """Compare every world in ``result`` with ``reference`` (map frame); return cells checked."""
-    checked = {}
-    expected_of = {100: H, 0: 0.0, -1: unknown_level}
-    mask = uniform(reference.data, radius)
-    x, y = cell_centres(reference)
-    for w in result.worlds:
-        sim = w.placement.simulator
-        version, probes = probe_world(w.world, [w.models], tmp / f"probe_{sim}")
-        assert version  # parsed strictly by SDFormat
-        (col,) = [p for p in probes if p.kind == "collision"]
-        visuals = [p for p in probes if p.kind == "visual"]
-        assert len(visuals) == 1 and visuals[0].textures == 3 and visuals[0].blends == 2
-        if sim == "gz":
-            # gz-sim rendering places the visual by <pos> alone; it must match the collision.
-            assert visuals[0].pos == pytest.approx(col.pose[:3])
-        ox, oy = w.placement.offset
-        got = terrain_height(col, x[mask] - ox, y[mask] - oy, sim)
-        want = np.vectorize(expected_of.get)(reference.data[mask])
-        bad = np.abs(got - want) > 0.01 * H
-        assert not bad.any(), (
-            f"{sim}: {bad.sum()} of {mask.sum()} cells off, e.g. map cell "
-            f"{np.argwhere(mask)[bad][0]} want {want[bad][0]} got {got[bad][0]}"
-        )
-        checked[sim] = int(mask.sum())
-    return checked
 
 
 @pytest.mark.parametrize("name", sorted(MAPS))

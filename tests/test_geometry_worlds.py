@@ -36,7 +36,8 @@ from scan2terrain.geometry.outlines import Polygon, rasterize
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid, Pose2D
 from scan2terrain.world.folder import Result
-from tests.conftest import MAPS, ROOT, write_map
+from tests.conftest import write_map
+from tests.fixtures import BOWL, GEB079, MAPS
 from tests.gazebo_harness import ShapeProbe, probe_shapes
 
 H = 2.0  # wall height used throughout
@@ -428,7 +429,7 @@ def test_octree_occupancy_walls(tmp_path: Path) -> None:
             "world.wall_faces": "cells",  # the boxes on the cell edges of the map
         },
     )
-    result = voxels.octree2world(ROOT / "fixtures/octomap/geb079.bt", tmp_path / "w", cfg)
+    result = voxels.octree2world(GEB079, tmp_path / "w", cfg)
     found = check_walls(result, tmp_path)
     assert found["gz"] > 1000
 
@@ -508,7 +509,7 @@ def test_unknown_geometry_is_a_usage_error(tmp_path: Path) -> None:
 def test_image_input_refuses_walls(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     config = tmp_path / "c.yaml"
     config.write_text("world:\n  geometry: mesh\n")
-    image = ROOT / "fixtures/images/heightmap_png_bowl/heightmap_bowl.png"
+    image = BOWL
     out = tmp_path / "w"
     assert main(["image2world", str(image), "-o", str(out), "--config", str(config)]) == 2
     assert "image2world makes heightmaps only" in capsys.readouterr().err

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from scan2terrain.cli import main
+from tests.fixtures import AUTZEN
 from tests.gazebo_harness import probe_spherical
 
 #: A 60 x 40 m patch of UTM zone 10N (central meridian -123): at 5,000 km north and 600 km east
@@ -116,9 +117,8 @@ def test_a_given_origin_is_used_and_no_crs_means_no_spherical(
 
 
 def test_a_laz_files_own_crs_is_used(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from tests.conftest import FIXTURES
 
-    laz = FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz"
+    laz = AUTZEN
     out = tmp_path / "w"
     printed = run(capsys, "cloud2world", str(laz), "-o", str(out), "--resolution", "2")
     # Its CRS is in international feet: the world is not in metres, and the report says so.

@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from scan2terrain.cli import main
-from tests.conftest import IMAGES, MAPS
+from tests.fixtures import IMAGES, MAPS
 
 GOLDEN = Path(__file__).parent / "golden/outputs.json"
 CASES = {

@@ -52,20 +52,38 @@ import tempfile
 import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from tests.fixtures import (
+    AUTZEN,
+    AUTZEN_CSV,
+    BOWL,
+    EMBARK_MCAP,
+    GRIDMAP,
+    HDL_PCD,
+    HDL_PLY,
+    LEVINE_DIR,
+    MOON,
+    NAV2,
+    OFFICE,
+    SFBAY,
+    SICK_DB3,
+    SIMPLE_LAS,
+    SIMPLE_LAZ,
+    STREET,
+    VALLEY,
+)
 from tests.mutation_runner import Case, Outcome, run_cases
 from tests.output_sanity import output_problems
+from tests.seeds import bt_file, ply_list, points, room, tiff_entries
 
 #: Minutes of forked runs: `pytest -m 'not slow'` leaves it out, CI runs it.
 pytestmark = pytest.mark.slow
 
-FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: Address space a child may take. A normal run of any case below peaks at about 200 MB of
 #: resident memory and runs within 1.2 GiB of address space (Open3D, numba and the octree's
 #: tables reserve it; 0.5 GiB is too little); 3 GiB leaves room for that and still stops a
@@ -608,10 +626,6 @@ def metadata_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 # --- point clouds -------------------------------------------------------------------------------
 
 
-def _points(n: int, seed: int = 1) -> np.ndarray:
-    return np.random.default_rng(seed).uniform((-4, -3, 0), (4, 3, 2), size=(n, 3))
-
-
 def las_header_mutations(data: bytes) -> list[Mutation]:
     """LAS 1.2 header fields: counts and sizes the reader must check against the file."""
     return [
@@ -674,7 +688,7 @@ def laz14_file() -> bytes:
 
     import laspy
 
-    pts = _points(500)
+    pts = points(500)
     las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
     las.header.scales = np.full(3, 0.001)
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
@@ -706,7 +720,7 @@ def laz_stream_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 
 
 def pcd_ascii() -> bytes:
-    pts = _points(200)
+    pts = points(200)
     head = (
         "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\n"
         f"COUNT 1 1 1 1\nWIDTH {len(pts)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
@@ -718,7 +732,7 @@ def pcd_ascii() -> bytes:
 def pcd_compressed(folder: Path) -> tuple[Path, Path]:
     import open3d
 
-    cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(_points(400)))
+    cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(points(400)))
     path = folder / "compressed.pcd"
     assert open3d.io.write_point_cloud(str(path), cloud, write_ascii=False, compressed=True)
     assert b"DATA binary_compressed" in path.read_bytes()[:400]
@@ -743,36 +757,13 @@ def pcd_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 
 
 def ply_ascii() -> bytes:
-    pts = _points(200)
+    pts = points(200)
     head = (
         "ply\nformat ascii 1.0\nelement vertex 200\nproperty float x\nproperty float y\n"
         "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
     )
     rows = "".join(f"{x:.4f} {y:.4f} {z:.4f}\n" for x, y, z in pts)
     return (head + rows + "3 0 1 2\n").encode()
-
-
-def ply_list(fmt: str) -> Callable[[], bytes]:
-    """A PLY whose vertex rows vary in length (a list property): the Open3D (RPly) path."""
-
-    def data() -> bytes:
-        pts = _points(150)
-        head = (
-            f"ply\nformat {fmt} 1.0\nelement vertex {len(pts)}\nproperty float x\n"
-            "property float y\nproperty float z\nproperty list uchar float extra\nend_header\n"
-        )
-        if fmt == "ascii":
-            rows = "".join(
-                f"{x:.4f} {y:.4f} {z:.4f} {k % 3}{' 1.5' * (k % 3)}\n"
-                for k, (x, y, z) in enumerate(pts)
-            )
-            return (head + rows).encode()
-        body = bytearray()
-        for k, p in enumerate(pts):  # a loop over a test file's 150 points
-            body += struct.pack("<3fB", *p, k % 3) + struct.pack(f"<{k % 3}f", *[1.5] * (k % 3))
-        return head.encode() + bytes(body)
-
-    return data
 
 
 def ply_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
@@ -790,7 +781,7 @@ def ply_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 
 def text_cloud(header: str, sep: str) -> Callable[[], bytes]:
     def data() -> bytes:
-        rows = "".join(f"{x:.4f}{sep}{y:.4f}{sep}{z:.4f}{sep}3\n" for x, y, z in _points(200))
+        rows = "".join(f"{x:.4f}{sep}{y:.4f}{sep}{z:.4f}{sep}3\n" for x, y, z in points(200))
         return (header + rows).encode()
 
     return data
@@ -921,14 +912,6 @@ def image_file(folder: Path) -> tuple[Path, Path]:
 # --- DEM ----------------------------------------------------------------------------------------
 
 
-def tiff_entries(data: bytes) -> dict[int, int]:
-    """Tag code -> offset of its 12-byte entry in a little-endian TIFF's first IFD."""
-    assert data[:4] == b"II*\x00"
-    ifd = struct.unpack_from("<I", data, 4)[0]
-    n = struct.unpack_from("<H", data, ifd)[0]
-    return {struct.unpack_from("<H", data, ifd + 2 + 12 * i)[0]: ifd + 2 + 12 * i for i in range(n)}
-
-
 def dem_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
     tags = tiff_entries(data)
     value = {code: at + 8 for code, at in tags.items()}  # a short value, or an offset to values
@@ -951,17 +934,6 @@ def dem_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 
 
 # --- octrees and scans --------------------------------------------------------------------------
-
-
-def bt_file(folder: Path) -> tuple[Path, Path]:
-    from scan2terrain.octree.bt import bt_bytes
-
-    rng = np.random.default_rng(3)
-    keys = np.unique(rng.integers(32768 - 20, 32768 + 20, size=(600, 3)), axis=0)
-    occupied = rng.random(len(keys)) < 0.4
-    path = folder / "tree.bt"
-    path.write_bytes(bt_bytes(resolution=0.1, keys=keys.astype(np.uint16), occupied=occupied))
-    return path, path
 
 
 def bt_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
@@ -1029,13 +1001,6 @@ def scan_bz2_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
 
 
 # --- bags ---------------------------------------------------------------------------------------
-
-
-@cache
-def room(variant: str) -> Any:
-    from tests.bagmaker import synthetic_room
-
-    return synthetic_room(variant, n_scans=6, beams=90, rings=4, azimuths=60)  # type: ignore[arg-type]
 
 
 def bag(fmt: str, variant: str) -> Callable[[Path], tuple[Path, Path]]:
@@ -1252,7 +1217,7 @@ def autzen_laz() -> bytes:
 
     import laspy
 
-    with laspy.open(FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz") as f:
+    with laspy.open(AUTZEN) as f:
         las = f.read()
     small = laspy.LasData(las.header)
     small.points = laspy.ScaleAwarePointRecord(
@@ -1266,12 +1231,12 @@ def autzen_laz() -> bytes:
     return out.getvalue()
 
 
-def every_row(relative: str, step: int) -> Callable[[], bytes]:
+def every_row(src: Path, step: int) -> Callable[[], bytes]:
     """A binary PLY or PCD fixture (fixed-size rows) cut to every ``step``-th row: its header as
     is but for the counts (``element vertex``; ``WIDTH`` and ``POINTS``)."""
 
     def data() -> bytes:
-        raw = (FIXTURES / relative).read_bytes()
+        raw = src.read_bytes()
         ply = raw.startswith(b"ply")
         end = after(raw, b"end_header") if ply else after(raw, b"\nDATA ")
         key = rb"element vertex (\d+)" if ply else rb"\nPOINTS (\d+)"
@@ -1291,11 +1256,11 @@ def every_row(relative: str, step: int) -> Callable[[], bytes]:
     return data
 
 
-def every_line(relative: str, step: int) -> Callable[[], bytes]:
+def every_line(src: Path, step: int) -> Callable[[], bytes]:
     """A text cloud fixture cut to every ``step``-th line."""
 
     def data() -> bytes:
-        lines = (FIXTURES / relative).read_bytes().splitlines(keepends=True)
+        lines = src.read_bytes().splitlines(keepends=True)
         return b"".join(lines[::step])
 
     return data
@@ -1336,7 +1301,7 @@ def office_pcd() -> bytes:
     """pc_pcl_office1_organized (640 x 480, binary_compressed, 1.9 MB) cut to its rows 236..243:
     640 x 8 organized points, NaNs (no return) included, its header as is but the sizes, and
     binary_compressed again (each field's column, LZF literal runs)."""
-    raw = (FIXTURES / "clouds/pc_pcl_office1_organized/office1.pcd").read_bytes()
+    raw = OFFICE.read_bytes()
     end = after(raw, b"\nDATA ")
     packed_size, size = struct.unpack_from("<II", raw, end)
     columns = np.frombuffer(lzf_decompress(raw[end + 8 : end + 8 + packed_size], size), "<f4")
@@ -1364,7 +1329,7 @@ def levine_files(folder: Path) -> tuple[Path, Path]:
 
     from PIL import Image
 
-    src = FIXTURES / "maps/map_levine_thinwalls"
+    src = LEVINE_DIR
     raw = (src / "levine.png").read_bytes()
     with Image.open(io.BytesIO(raw)) as im:
         buf = io.BytesIO()
@@ -1381,9 +1346,6 @@ def levine_yaml(folder: Path) -> tuple[Path, Path]:
     return yaml_path, yaml_path
 
 
-BAGS = FIXTURES / "bags"
-
-
 def embark_bag(folder: Path) -> tuple[Path, Path]:
     """bag2_derived_embark_luminar_mcap (2.9 MB) with each of its 5 Luminar clouds cut to every
     k-th of its points (2,000 points each): its messages, schemas, channels, metadata record
@@ -1396,7 +1358,7 @@ def embark_bag(folder: Path) -> tuple[Path, Path]:
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    src = BAGS / "bag2_derived_embark_luminar_mcap"
+    src = EMBARK_MCAP
     bag = folder / src.name
     bag.mkdir()
     shutil.copyfile(src / "metadata.yaml", bag / "metadata.yaml")
@@ -1453,7 +1415,7 @@ def nav2_bag(folder: Path) -> tuple[Path, Path]:
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    src = BAGS / "bag2_nav2_collision_mcap_zstd"
+    src = NAV2
     bag = folder / src.name
     bag.mkdir()
     packed_file = (src / "_tmp_cm_bag_0.mcap.zstd").read_bytes()
@@ -1501,7 +1463,7 @@ def sick_bag(folder: Path) -> tuple[Path, Path]:
     topic, written again by rosbags (sqlite3, 205 KB)."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-    src = BAGS / "bag2_derived_sick_lms1xx_db3"
+    src = SICK_DB3
     bag = folder / src.name
     counts: dict[str, int] = {}
     with Reader(src) as reader, Writer(bag, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
@@ -1520,12 +1482,12 @@ def sick_bag(folder: Path) -> tuple[Path, Path]:
     return bag, next(bag.glob("*.db3"))
 
 
-def copy_folder(relative: str, storage: str) -> Callable[[Path], tuple[Path, Path]]:
+def copy_folder(src: Path, storage: str) -> Callable[[Path], tuple[Path, Path]]:
     """A fixture folder (a rosbag2 bag) copied whole; ``storage`` is the file mutated."""
 
     def make(folder: Path) -> tuple[Path, Path]:
-        dst = folder / Path(relative).name
-        shutil.copytree(FIXTURES / relative, dst)
+        dst = folder / src.name
+        shutil.copytree(src, dst)
         return dst, dst / storage
 
     return make
@@ -1569,10 +1531,10 @@ def world(command: str, *extra: str) -> Callable[[Path, Path], list[str]]:
     return argv
 
 
-def copy_fixture(relative: str) -> Callable[[Path], tuple[Path, Path]]:
+def copy_fixture(src: Path) -> Callable[[Path], tuple[Path, Path]]:
     def make(folder: Path) -> tuple[Path, Path]:
-        dst = folder / Path(relative).name
-        shutil.copyfile(FIXTURES / relative, dst)
+        dst = folder / src.name
+        shutil.copyfile(src, dst)
         return dst, dst
 
     return make
@@ -1592,7 +1554,7 @@ def points_file(suffix: str) -> Callable[[], bytes]:
     def data() -> bytes:
         from scan2terrain.exporters.pointcloud import points_bytes
 
-        return points_bytes(_points(300), suffix)
+        return points_bytes(points(300), suffix)
 
     return data
 
@@ -1606,9 +1568,9 @@ SICK_CONVERT = with_options(convert, "--topic", "/cloud", "--fixed-frame", "clou
 SICK_WORLD = world("bag2world", "--topic", "/sick_lms_1xx/scan", "--fixed-frame", "cloud",
                    "--no-preview", "--no-fidelity")  # fmt: skip
 READERS = [
-    Reader("las", copy_fixture("clouds/pc_las_simple_twin/simple.las"), convert, "o.xyz",
+    Reader("las", copy_fixture(SIMPLE_LAS), convert, "o.xyz",
            las_mutations),
-    Reader("laz", copy_fixture("clouds/pc_las_simple_twin/simple.laz"), convert, "o.xyz",
+    Reader("laz", copy_fixture(SIMPLE_LAZ), convert, "o.xyz",
            laz_mutations),
     Reader("laz14", written("c14.laz", laz14_file), convert, "o.xyz", laz14_mutations),
     Reader("laz-stream", written("c.laz", points_file(".laz")),
@@ -1633,7 +1595,7 @@ READERS = [
            png_mutations),
     Reader("image-png", image_file, world("image2world", "--resolution", "0.1"), "o",
            png_mutations),
-    Reader("dem", copy_fixture("terrain/dem_moon_polar_geotiff/dem_moon.tif"),
+    Reader("dem", copy_fixture(MOON),
            world("dem2world"), "o", dem_mutations),
     Reader("bt", bt_file, world("octree2world"), "o", bt_mutations),
     Reader("scan-dat", written("scan.dat", scan_text),
@@ -1651,34 +1613,34 @@ READERS = [
     Reader("mcap-ros1", mcap_of("ros1"), convert, "o.xyz", mcap_mutations),
     Reader("mcap-foxglove", mcap_of("foxglove"), BAG2WORLD, "o", mcap_mutations),
     # issue 28: seeds from every fixture DEM, LAS/LAZ, PLY, PCD, CSV/XYZ, MCAP, db3 and PNG
-    Reader("dem-sfbay", copy_fixture("terrain/dem_sfbay_squared_geotiff/dem_squared.tif"),
+    Reader("dem-sfbay", copy_fixture(SFBAY),
            world("dem2world"), "o", dem_mutations),
-    Reader("las-stream", copy_fixture("clouds/pc_las_simple_twin/simple.las"),
+    Reader("las-stream", copy_fixture(SIMPLE_LAS),
            world("cloud2world", "--stream", "--resolution", "10", "--no-preview"), "o",
            las_stream_mutations),
     Reader("laz-autzen", written("autzen.laz", autzen_laz),
            world("cloud2world", "--resolution", "2", "--no-preview"), "o",
            laz_autzen_mutations),
     Reader("ply-hdl32", written("target.ply",
-                                every_row("clouds/pc_hdl32_scan_pcd_ply_twin/target.ply", 23)),
+                                every_row(HDL_PLY, 23)),
            world("cloud2world", "--resolution", "0.2", "--no-preview"), "o", ply_mutations),
     Reader("pcd-hdl32", written("scan.pcd",
-                                every_row("clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd", 23)),
+                                every_row(HDL_PCD, 23)),
            convert, "o.xyz", pcd_mutations),
     Reader("pcd-office", written("office1.pcd", office_pcd), convert, "o.xyz", pcd_mutations),
     Reader("xyz-street",
            written("street.xyz",
-                   every_line("clouds/pc_xyz_street_lidar/multisensor_lidar.xyz", 11)),
+                   every_line(STREET, 11)),
            convert, "o.ply", text_mutations),
     Reader("csv-autzen",
-           copy_fixture("clouds/pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"),
+           copy_fixture(AUTZEN_CSV),
            world("cloud2world", "--resolution", "5", "--no-preview"), "o", text_mutations),
     Reader("map-levine", levine_files, world("map2world", "--no-preview"), "o", png_mutations),
     Reader("map-levine-yaml", levine_yaml, world("map2world", "--no-preview"), "o",
            lambda d, r: yaml_mutations(d, r, full=EVERY_VALUE)),
-    Reader("image-bowl", copy_fixture("images/heightmap_png_bowl/heightmap_bowl.png"),
+    Reader("image-bowl", copy_fixture(BOWL),
            world("image2world", "--resolution", "0.1"), "o", png_mutations),
-    Reader("image-valley", copy_fixture("images/heightmap_png_winding_valley/heightmap.png"),
+    Reader("image-valley", copy_fixture(VALLEY),
            world("image2world", "--resolution", "0.1", "--no-preview"), "o", png_mutations),
     Reader("mcap-embark", embark_bag, EMBARK_CONVERT, "o.xyz",
            lambda d, r: mcap_deep_mutations(d, r, full=EVERY_VALUE)),
@@ -1689,7 +1651,7 @@ READERS = [
            lambda d, r: mcap_deep_mutations(d, r, full=EVERY_VALUE)),
     Reader("db3-sick", sick_bag, SICK_CONVERT, "o.xyz", sqlite_mutations),
     Reader("db3-sick-world", sick_bag, SICK_WORLD, "o", lambda d, r: sqlite_mutations(d, r)[::2]),
-    Reader("db3-gridmap", copy_folder("bags/bag2_gridmap_db3_unknown_type", "grid_map_bag.db3"),
+    Reader("db3-gridmap", copy_folder(GRIDMAP, "grid_map_bag.db3"),
            inspect, "o", sqlite_mutations),
 ]  # fmt: skip
 

@@ -15,9 +15,8 @@ from PIL import Image
 
 from scan2terrain.cli import main
 from tests.conftest import write_map
+from tests.fixtures import AUTZEN_CSV, MOON
 from tests.output_sanity import output_problems
-
-FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +30,8 @@ def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     map_yaml = write_map(root / "map", pixels, name="m.png", origin="[-2.0, -1.5, 0.0]")
     y, x = np.mgrid[0:33, 0:33]
     Image.fromarray(((x * y) % 256).astype(np.uint8)).save(root / "hill.png")
-    dem = FIXTURES / "terrain/dem_moon_polar_geotiff/dem_moon.tif"
-    cloud = FIXTURES / "clouds/pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"
+    dem = MOON
+    cloud = AUTZEN_CSV
     commands = {
         "mesh": ["map2world", map_yaml, "-o", root / "mesh", "--no-preview"],
         "image": ["image2world", root / "hill.png", "-o", root / "image", "--resolution", "0.1"],

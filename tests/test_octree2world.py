@@ -20,12 +20,9 @@ from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.octomap_scan import read_scans
 from scan2terrain.readers.poses import rpy_matrix
 from scan2terrain.world.folder import write_world_folder
-from tests.conftest import FIXTURES
+from tests.fixtures import FR079, GEB079
 from tests.gazebo_harness import probe_world, terrain_height
-from tests.test_gazebo_worlds import H, check_world
-
-GEB079 = FIXTURES / "octomap/geb079.bt"
-FR079 = FIXTURES / "octomap/scan.dat.bz2"
+from tests.world_checks import H, check_world
 
 
 def test_bt_to_world_lands_in_the_map_frame(tmp_path: Path) -> None:

@@ -15,7 +15,8 @@ import pytest
 
 from scan2terrain.cli import build_parser, main
 from tests.bagmaker import synthetic_room
-from tests.conftest import FIXTURES, write_map
+from tests.conftest import write_map
+from tests.fixtures import MOON
 
 FLOATS = ["nan", "inf", "-inf", "1e300", "-1e300", "0", "-1", "1e-300", "123456"]
 INTS = ["-1", "0", "3", "1099511627776", "9" * 400]
@@ -45,7 +46,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[str]]:
         "bag2world": [str(bag)],
         "convert": [str(root / "cloud.xyz"), "OUT.ply"],
         "inspect": [str(bag)],
-        "dem2world": [str(FIXTURES / "terrain/dem_moon_polar_geotiff/dem_moon.tif")],
+        "dem2world": [str(MOON)],
     }
 
 

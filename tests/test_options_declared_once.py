@@ -12,8 +12,8 @@ import pytest
 from scan2terrain.cli import main
 from scan2terrain.cli.dispatch import COMMANDS
 from scan2terrain.cli.parser import Parser, build_parser
+from tests.fixtures import SICK_ROS1_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
 SHARED = ("-v", "-q", "--config", "--overwrite", "--max-range", "--las-classes", "--simulator")
 
 
@@ -59,7 +59,7 @@ def test_the_shared_run_options_reach_every_command() -> None:
 def test_quiet_prints_nothing_in_every_command(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
 ) -> None:
-    bag = ROOT / "fixtures/bags/bag1_sick_lms1xx_radar_tf"
+    bag = SICK_ROS1_DIR
     argv = [command, str(bag), "-q", "--topic", "/sick_lms_1xx/scan", "--pose", *"000000"]
     if command == "convert":
         argv.insert(2, str(tmp_path / "o.xyz"))

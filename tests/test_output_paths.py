@@ -17,17 +17,18 @@ import numpy as np
 import pytest
 
 from scan2terrain.cli import main
-from tests.conftest import FIXTURES, IMAGES, MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import CCNY, GEB079, IMAGES, LEG_TRACKER_DIR, MAPS, SFBAY, SIMPLE_LAS
 
 #: command -> the fixture files it reads (the first is the one named on the command line).
 INPUTS: dict[str, list[Path]] = {
     "map2world": [MAPS["tb3"], MAPS["tb3"].with_name("map.pgm")],
     "image2world": [IMAGES["bowl_rgb"]],
-    "dem2world": [FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif"],
-    "octree2world": [FIXTURES / "octomap/geb079.bt"],
-    "bag2world": [FIXTURES / "bags/bag1_ccny_hokuyo_scan/demo.bag"],
-    "cloud2world": [FIXTURES / "clouds/pc_las_simple_twin/simple.las"],
-    "convert": [FIXTURES / "clouds/pc_las_simple_twin/simple.las"],
+    "dem2world": [SFBAY],
+    "octree2world": [GEB079],
+    "bag2world": [CCNY],
+    "cloud2world": [SIMPLE_LAS],
+    "convert": [SIMPLE_LAS],
 }
 COMMANDS = sorted(INPUTS)
 
@@ -202,7 +203,7 @@ def test_a_250_character_output_name_is_written(
     # and replaced under --overwrite (the old folder is set aside under a short name too)
     assert main(["map2world", str(good), "-o", name, "--simulator", "gz", "-q", "--overwrite"]) == 0
     cloud = "c" * 246 + ".ply"
-    src = FIXTURES / "clouds/pc_las_simple_twin/simple.las"
+    src = SIMPLE_LAS
     assert main(["convert", str(src), cloud, "-q"]) == 0
     assert main(["convert", str(src), cloud, "-q", "--overwrite"]) == 0
     capsys.readouterr()
@@ -265,7 +266,7 @@ def test_every_file_read_is_an_input(tmp_path: Path, capsys: pytest.CaptureFixtu
         ],
         [
             "bag2world",
-            str(FIXTURES / "bags/bag1_leg_tracker_room_scan"),
+            str(LEG_TRACKER_DIR),
             "-o",
             str(images),
             "--overwrite",

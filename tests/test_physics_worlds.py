@@ -29,7 +29,7 @@ from scan2terrain.geometry.faces import faces_at_hits
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.types import OccupancyGrid
 from tests.bagmaker import synthetic_room
-from tests.conftest import FIXTURES, IMAGES, MAPS
+from tests.fixtures import HDL_PCD, IMAGES, MAPS, SFBAY
 from tests.gazebo_harness import HeightmapProbe, probe_world, terrain_height
 from tests.physics_harness import (
     ROBOT_FRONT,
@@ -44,7 +44,6 @@ from tests.physics_harness import (
     Sphere,
     simulate,
 )
-from tests.readers.test_dem import SFBAY
 
 #: Every world driven in gz-sim's physics: `pytest -m 'not slow'` leaves it out, CI runs it.
 pytestmark = pytest.mark.slow
@@ -55,7 +54,6 @@ GAP = 0.3  # the robot starts this far before a wall face
 SPEED = 0.5  # m/s, wheel rim speed when driving at a wall
 SETTLE = 0.3  # s braked before driving
 DRIVE = 3.0  # s driving: 1.5 m at 0.5 m/s, 1.2 m more than the gap
-HDL_PCD = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import pytest
 
 from scan2terrain.cli import main
 from scan2terrain.config import Config, cloud_resolution
-from tests.conftest import FIXTURES, MAPS
+from tests.fixtures import AUTZEN, AUTZEN_CSV, MAPS, SIMPLE_LAS
 
 LIMIT = 3 << 30  # bytes of address space for a child run
 
@@ -42,8 +42,8 @@ def run_limited(
 @pytest.mark.parametrize(
     "cloud",
     [
-        FIXTURES / "clouds/pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt",
-        FIXTURES / "clouds/pc_las_simple_twin/simple.las",
+        AUTZEN_CSV,
+        SIMPLE_LAS,
     ],
     ids=["autzen-txt", "simple-las"],
 )
@@ -115,7 +115,7 @@ def test_terrain_cells_follow_the_point_density_not_one_heightmaps_side(
 def test_a_grid_over_the_memory_budget_is_refused_naming_what_fits(tmp_path: Path) -> None:
     """The autzen LAZ at 0.05 m: 265 M cells, 17.8 GB and 70 s before the budget; now one line
     with the resolution that fits and the setting that raises it, nothing written."""
-    laz = FIXTURES / "clouds/pc_laz_autzen_trim/autzen_trim.laz"
+    laz = AUTZEN
     for stream in ([], ["--stream"]):
         r = run_limited(
             ["cloud2world", str(laz), "-o", str(tmp_path / "w"), "--resolution", "0.05", *stream],

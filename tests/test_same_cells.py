@@ -21,6 +21,7 @@ from scan2terrain.grids.tiles import Lattice, TileSet
 from scan2terrain.octree.keys import KEY_OFFSET, coord_cell, key_to_coord
 from scan2terrain.octree.tree import VoxelOctree
 from tests.bagmaker import synthetic_room
+from tests.fixtures import AUTZEN
 
 RES = 0.05
 #: Outputs that name the path taken or the octree it built, not the map.
@@ -179,10 +180,6 @@ def test_bag2world_octree_stream_and_dask_write_the_same_bytes(
 
 
 # --- terrain: heights from the points on every path (issue 25) --------------------------------
-
-AUTZEN = (
-    Path(__file__).resolve().parent.parent / "fixtures/clouds/pc_laz_autzen_trim/autzen_trim.laz"
-)
 
 
 def heightmap_levels(folder: Path) -> int:

@@ -11,12 +11,9 @@ import yaml
 
 from scan2terrain.cli import main
 from tests.bagmaker import synthetic_room
-from tests.conftest import FIXTURES, IMAGES, MAPS, write_map
-from tests.readers.test_dem import SFBAY
+from tests.conftest import write_map
+from tests.fixtures import GEB079, HDL_PCD, IMAGES, MAPS, SFBAY
 from tests.spawn_check import spawn_ground
-
-HDL_PCD = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
-GEB079 = FIXTURES / "octomap/geb079.bt"
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: object) -> str:

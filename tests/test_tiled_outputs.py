@@ -35,7 +35,7 @@ from scan2terrain.types import HeightGrid, OccupancyGrid, Pose2D
 from scan2terrain.world.folder import Result, write_world_folder
 from tests.conftest import write_map
 from tests.gazebo_harness import HeightmapProbe, probe_world, terrain_height, vertex_world_xy
-from tests.readers.test_dem import write_geotiff
+from tests.geotiff import write_geotiff
 
 S = 33  # terrain.max_side in these tests
 ORIGIN = Pose2D(-3.0, 2.0, 0.0)

@@ -15,12 +15,11 @@ import yaml
 
 from scan2terrain.cli import main
 from scan2terrain.world.folder import write_world_folder
-from tests.conftest import FIXTURES
+from tests.fixtures import BOWL, CCNY, FR079, FUSE, FUSE_DIR, GEB079, HDL_PCD, TB3_MAP
 from tests.gazebo_harness import probe_shapes
 from tests.physics_harness import drive_robot, drop_probes
 
 R = 0.1  # voxel side of the synthetic scene
-GEB079 = FIXTURES / "octomap/geb079.bt"
 
 
 def _box(x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> np.ndarray:
@@ -174,7 +173,7 @@ def test_voxels_refused_where_there_are_none(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "w"
-    yaml_path = FIXTURES / "maps/map_tb3_world_mapsaver/map.yaml"
+    yaml_path = TB3_MAP
     with pytest.raises(SystemExit):  # not offered: a usage error naming the choices
         main(["map2world", str(yaml_path), "-o", str(out), "--geometry", "voxels"])
     assert "invalid choice: 'voxels'" in capsys.readouterr().err and not out.exists()
@@ -182,10 +181,10 @@ def test_voxels_refused_where_there_are_none(
     cfg.write_text("world:\n  geometry: voxels\n")
     _refused(capsys, ["map2world", str(yaml_path), "-o", str(out), "--config", str(cfg)], out,
              "no third dimension")  # fmt: skip
-    image = FIXTURES / "images/heightmap_png_bowl/heightmap_bowl.png"
+    image = BOWL
     _refused(capsys, ["image2world", str(image), "-o", str(out), "--config", str(cfg)], out,
              "no third dimension")  # fmt: skip
-    cloud = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    cloud = HDL_PCD
     _refused(capsys, ["cloud2world", str(cloud), "-o", str(out), "--geometry", "voxels",
                       "--stream"], out, "streaming keeps no voxels")  # fmt: skip
 
@@ -209,7 +208,7 @@ def test_outliers_are_dropped_from_cloud_files(
     target = tmp_path / "clean.xyz"
     assert main(["convert", str(cloud), str(target), "--outliers", "2", "-q"]) == 0
     assert len(np.loadtxt(target, ndmin=2)) == 20000
-    bag = FIXTURES / "bags/bag1_ccny_hokuyo_scan/demo.bag"
+    bag = CCNY
     _refused(capsys, ["convert", str(bag), str(tmp_path / "b.xyz"), "--outliers", "2"],
              tmp_path / "b.xyz", "scans.outliers")  # fmt: skip
 
@@ -287,7 +286,7 @@ def test_an_octree_without_occupied_voxels_is_refused(
 def test_fr079_scans_become_a_closed_voxel_world(tmp_path: Path) -> None:
     """OctoMap's FR-079 corridor scans, ray cast at 0.1 m, then meshed."""
     out = tmp_path / "fr079"
-    scans = FIXTURES / "octomap/scan.dat.bz2"
+    scans = FR079
     args = ["octree2world", str(scans), "-o", str(out), "--resolution", "0.1", "--geometry",
             "voxels", "--simulator", "gz", "-q"]  # fmt: skip
     assert main(args) == 0
@@ -320,7 +319,7 @@ def test_fr079_scans_become_a_closed_voxel_world(tmp_path: Path) -> None:
 
 def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
     """A LaserScan bag ray cast into the octree, its occupied voxels meshed."""
-    bag = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom"
+    bag = FUSE_DIR
     out = tmp_path / "w"
     args = ["bag2world", str(bag), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
             "--resolution", "0.05", "-q"]  # fmt: skip
@@ -334,8 +333,6 @@ def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
 
 
 # --- trees swept by a 2D laser: one scan plane, walls extruded -----------------------------------
-
-TB3 = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
 
 
 def _walls(out: Path) -> tuple[float, float, float]:
@@ -378,7 +375,7 @@ def test_a_2d_laser_bag_becomes_walls_of_the_wall_height(
     free space the laser saw), not the empty band 0.3-2 m above a floor it never saw. The same
     from the octree.bt it wrote."""
     out = tmp_path / "bag"
-    args = ["bag2world", str(TB3), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
+    args = ["bag2world", str(FUSE), "-o", str(out), "--geometry", "voxels", "--simulator", "gz",
             "--height", "1.2"]  # fmt: skip
     assert main(args) == 0
     printed = capsys.readouterr().out

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from tests.conftest import FIXTURES
+from tests.fixtures import FIXTURES, GEB079, HDL_PCD, ROOT
 
 NOTE = (
     "scan2terrain: compiling numba kernels into numba's cache (once; 30 s to 2 minutes on 2 "
@@ -61,7 +61,7 @@ def test_every_kernel_module_is_listed() -> None:
     """A new kernel module must join KERNEL_MODULES, or the warm-up would leave it cold."""
     from scan2terrain.warmup import KERNEL_MODULES
 
-    src = Path(__file__).resolve().parent.parent / "src"
+    src = ROOT / "src"
     jitted = {
         ".".join(p.relative_to(src).with_suffix("").parts)
         for p in src.rglob("*.py")
@@ -88,7 +88,7 @@ def test_compiling_is_announced_when_it_starts_and_timed_when_done(
         return real(*args, **kwargs)
 
     monkeypatch.setattr(voxels, "octree2world", compiling)
-    tree = str(FIXTURES / "octomap/geb079.bt")
+    tree = str(GEB079)
     assert main(["octree2world", tree, "-o", str(tmp_path / "a")]) == 0
     notes = [line for line in capsys.readouterr().err.splitlines() if "numba" in line]
     assert notes[0] == NOTE and len(notes) == 2, notes
@@ -135,7 +135,7 @@ def test_a_command_that_compiles_nothing_says_nothing_of_compiling(tmp_path: Pat
             fresh[module].mkdir(parents=True, exist_ok=True)
             for f in folder.glob(f"{stem}.*.nb[ic]"):
                 shutil.copy2(f, fresh[module])
-    pcd = FIXTURES / "clouds/pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
+    pcd = HDL_PCD
     done = subprocess.run(
         [py, "-m", "scan2terrain.cli", "cloud2world", pcd, "-o", tmp_path / "w"],
         env=env,

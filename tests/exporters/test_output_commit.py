@@ -21,7 +21,7 @@ from scan2terrain.cli import main
 from scan2terrain.errors import OutputError
 from scan2terrain.exporters import output
 from scan2terrain.exporters.output import TMP_PREFIX, OutputDir, atomic_output
-from tests.conftest import MAPS
+from tests.fixtures import MAPS
 
 FILES = ("scan2terrain.yaml", "world.txt", "models/m/model.sdf", "models/m/meshes/walls.stl")
 

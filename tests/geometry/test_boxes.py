@@ -21,7 +21,7 @@ from scan2terrain import steps
 from scan2terrain.config import Config
 from scan2terrain.geometry.boxes import box_extents, merge_boxes, rasterize_boxes
 from scan2terrain.readers import read_map_yaml
-from tests.conftest import MAPS
+from tests.fixtures import MAPS
 
 
 def painted(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

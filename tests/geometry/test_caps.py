@@ -16,14 +16,14 @@ from numpy.typing import NDArray
 
 from scan2terrain.cli import main
 from scan2terrain.geometry import _cap_tiles, caps
-from scan2terrain.geometry._cap_repair import _twice_areas
-from scan2terrain.geometry.contacts import _SharedPoints
+from scan2terrain.geometry._cap_repair import twice_areas
+from scan2terrain.geometry.contacts import SharedPoints
 from scan2terrain.geometry.mesh import extrude, is_watertight
-from scan2terrain.geometry.outlines import Polygon, _flatten, trace
+from scan2terrain.geometry.outlines import Polygon, flatten, trace
 from scan2terrain.geometry.simplify import simplify
 from scan2terrain.types import Pose2D
 from tests.conftest import write_map
-from tests.geometry.test_mesh import check_solid
+from tests.geometry.shapes import check_solid
 
 #: Seeds of :func:`speckle_map` whose caps earcut triangulated wrongly.
 EARCUT_FAILED = (19, 48, 62)
@@ -41,14 +41,14 @@ def speckle_map(seed: int) -> NDArray[np.bool_]:
 def check_caps(polys: list[Polygon]) -> NDArray[np.int64]:
     """The caps of the polygons, checked: every triangle counter-clockwise with area, their
     areas adding up to the polygons', and their boundary edges exactly the outline edges."""
-    rings = _flatten(polys)
+    rings = flatten(polys)
     xy = rings.xy
     nxt = rings.next_vertex()
     prv = np.empty(len(xy), dtype=np.int64)
     prv[nxt] = np.arange(len(xy))
-    shared = _SharedPoints(xy, nxt, prv)
+    shared = SharedPoints(xy, nxt, prv)
     tri = caps._caps(xy, rings.start, rings.owner, shared)
-    area2 = _twice_areas(xy, tri)
+    area2 = twice_areas(xy, tri)
     assert (area2 > 0).all()
     assert np.isclose(area2.sum() / 2, sum(p.area() for p in polys), rtol=1e-12)
     # The outline edges as the mesh's walls take them: from the sector vertex of their start.

@@ -22,53 +22,10 @@ from scan2terrain.geometry.mesh import Mesh, extrude, is_watertight
 from scan2terrain.geometry.outlines import Polygon, rasterize, trace
 from scan2terrain.geometry.simplify import simplify
 from scan2terrain.types import Pose2D
-from tests.geometry.test_outlines import default_filtered, grid
+from tests.geometry.shapes import check_solid, default_filtered, grid, volume
 
 ORIGIN = Pose2D(0.0, 0.0, 0.0)
 COLLADA = "{http://www.collada.org/2005/11/COLLADASchema}"
-
-
-def volume(mesh: Mesh) -> float:
-    """Signed volume (divergence theorem): positive when faces wind outwards."""
-    v = mesh.vertices[mesh.faces]
-    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
-
-
-def welded_watertight(mesh: Mesh) -> bool:
-    """trimesh's verdict on the STL bytes, where vertices are welded by position (as Gazebo's
-    assimp does): every edge in exactly two faces, consistently wound."""
-    import trimesh
-
-    loaded = trimesh.load(io.BytesIO(stl_bytes(mesh)), file_type="stl", force="mesh")
-    return bool(loaded.is_watertight and loaded.is_winding_consistent)
-
-
-def check_solid(mesh: Mesh, polygons: list[Polygon], height: float, base: float) -> None:
-    assert is_watertight(mesh)
-    assert welded_watertight(mesh)
-    area = sum(p.area() for p in polygons)
-    # Vertices at diagonal contacts move a hair into their own material (SPLIT_MAX each),
-    # which takes at most a sliver of SPLIT_MAX times the two edges there off the volume.
-    points = np.unique(np.concatenate([r for p in polygons for r in p.rings()]), axis=0)
-    contacts = sum(len(r) for p in polygons for r in p.rings()) - len(points)
-    longest = max(
-        float(np.abs(np.diff(r, axis=0)).max(initial=0)) for p in polygons for r in p.rings()
-    )
-    slack = contacts * 2 * SPLIT_MAX * longest * height
-    assert area * height - slack - 1e-9 <= volume(mesh) <= area * height * (1 + 1e-9) + 1e-9
-    z = mesh.vertices[:, 2]
-    assert set(np.unique(z).tolist()) <= {base, base + height}
-    # Walls: two triangles per outline edge; every face has area.
-    edges = sum(len(r) for p in polygons for r in p.rings())
-    assert len(mesh.faces) >= 2 * edges + 2
-    v = mesh.vertices[mesh.faces]
-    assert (np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 0).all()
-    # Walls face out: the outward normal of each wall quad points away from the material (the
-    # right of the outline edge), caps face up at the top and down at the bottom.
-    normals = mesh.normals()
-    top = (v[:, :, 2] == base + height).all(axis=1)
-    bottom = (v[:, :, 2] == base).all(axis=1)
-    assert np.allclose(normals[top], [0, 0, 1]) and np.allclose(normals[bottom], [0, 0, -1])
 
 
 # --- hand-made shapes ----------------------------------------------------------------------------

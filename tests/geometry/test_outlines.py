@@ -8,7 +8,6 @@ checked by brute force here, independently of the kernels' own intersection inde
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import Any
 
@@ -20,21 +19,12 @@ from hypothesis.extra.numpy import arrays
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scan2terrain.config import Config
 from scan2terrain.geometry.outlines import Polygon, rasterize, trace
 from scan2terrain.geometry.simplify import simplify
-from scan2terrain.readers import read_map_yaml
-from scan2terrain.steps import classify, filter_occupancy
-from scan2terrain.types import OCCUPIED, Pose2D
-from tests.conftest import MAPS
+from scan2terrain.types import Pose2D
+from tests.geometry.shapes import default_filtered, grid
 
 ORIGIN = Pose2D(0.0, 0.0, 0.0)
-
-
-def grid(text: str) -> NDArray[np.bool_]:
-    """A grid drawn as text, top row first (as it looks): ``#`` occupied, ``.`` free."""
-    rows = [r.strip() for r in text.strip().splitlines()]
-    return np.flipud(np.array([[c == "#" for c in r] for r in rows], dtype=bool))
 
 
 def rings_of(polygons: list[Polygon]) -> list[NDArray[np.float64]]:
@@ -44,16 +34,6 @@ def rings_of(polygons: list[Polygon]) -> list[NDArray[np.float64]]:
 def signed_area(ring: NDArray[np.float64]) -> float:
     x, y = ring[:, 0], ring[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-
-
-@functools.cache
-def default_filtered(name: str) -> tuple[NDArray[np.bool_], float, Pose2D]:
-    """A fixture map's occupied cells after classification and the default filter, as
-    ``map2world`` computes them (steps.classify, steps.filter_occupancy)."""
-    meta, g = read_map_yaml(MAPS[name])
-    trinary = classify(g, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    occupied = filter_occupancy(trinary, Config()) == OCCUPIED
-    return occupied, g.resolution, g.origin
 
 
 # --- independent validity checks ---------------------------------------------------------------

@@ -20,9 +20,8 @@ import pytest
 from numpy.typing import NDArray
 
 from scan2terrain.octree.tree import VoxelOctree
-from tests.conftest import FIXTURES
+from tests.fixtures import FR079
 
-FR079_SCAN = FIXTURES / "octomap/scan.dat.bz2"
 TREE_DEPTH = 16
 
 
@@ -33,7 +32,7 @@ def import_octomap() -> ModuleType:
         pytest.fail("octomap-python is needed for these tests: pip install octomap-python")
 
 
-def load_scan(path: Path = FR079_SCAN) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def load_scan(path: Path = FR079) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """OctoMap's scan.dat text format: optional ``NODE x y z roll pitch yaw`` lines, then
     ``x y z`` per point. Returns (points float64 (N, 3), sensor origin (3,)); the origin is the
     first NODE's position, or (0, 0, 0) without one (FR-079 has none). Points are given in the

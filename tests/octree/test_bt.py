@@ -27,9 +27,8 @@ from numpy.typing import NDArray
 from scan2terrain.errors import InputError
 from scan2terrain.exporters.pointcloud import write_points
 from scan2terrain.octree.bt import BtTree, read_bt, write_bt
-from tests.conftest import FIXTURES
+from tests.fixtures import GEB079
 
-GEB079 = FIXTURES / "octomap/geb079.bt"
 OFF = 32768
 Voxels = tuple[NDArray[np.uint16], NDArray[np.bool_]]
 

@@ -28,7 +28,7 @@ from tests.octree._octomap_ref import (
     ours_voxels,
     pack,
 )
-from tests.octree.test_tree import room_scans
+from tests.octree.room import room_scans
 
 Maker = Callable[..., VoxelOctree]
 

@@ -29,18 +29,19 @@ from scan2terrain.readers.bag import (
     resolve_time,
 )
 from tests.bagmaker import synthetic_room, write_bag
-
-BAGS = Path(__file__).resolve().parents[2] / "fixtures/bags"
-SICK1 = BAGS / "bag1_sick_lms1xx_radar_tf/rms_1xxx_lms_1xx_movement_off.bag"
-SICK2 = BAGS / "bag2_derived_sick_lms1xx_db3"
-EMBARK1 = BAGS / "bag1_embark_luminar_pointcloud/test.bag"
-EMBARK2 = BAGS / "bag2_derived_embark_luminar_mcap"
-FUSE = BAGS / "bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
-LEG = BAGS / "bag1_leg_tracker_room_scan/demo_stationary_simple_environment.bag"
-CCNY = BAGS / "bag1_ccny_hokuyo_scan/demo.bag"
-LEGACY = BAGS / "bag1_legacy_rosrecord_v12/demo_rosrecord_v1.2.bag"
-GRIDMAP = BAGS / "bag2_gridmap_db3_unknown_type"
-NAV2 = BAGS / "bag2_nav2_collision_mcap_zstd"
+from tests.fixtures import (
+    BAGS,
+    CCNY,
+    EMBARK_MCAP,
+    EMBARK_ROS1,
+    FUSE,
+    GRIDMAP,
+    LEG_TRACKER,
+    LEGACY,
+    NAV2,
+    SICK_DB3,
+    SICK_ROS1,
+)
 
 PC2, LS, TF = POINT_CLOUD2, LASER_SCAN, TF_MESSAGE
 SICK_SENSORS = {
@@ -58,7 +59,7 @@ EMBARK_TOPICS = {
 #: path -> (start s, duration s, topics {name: (type, count)}), from each SOURCE.txt.
 CATALOGUE: dict[str, tuple[Path, float, float, dict[str, tuple[str, int]]]] = {
     "sick_ros1": (
-        SICK1,
+        SICK_ROS1,
         1663929585.388,
         1.88,
         {
@@ -78,9 +79,9 @@ CATALOGUE: dict[str, tuple[Path, float, float, dict[str, tuple[str, int]]]] = {
             "/radar": ("sick_scan/msg/RadarScan", 34),
         },
     ),
-    "sick_db3": (SICK2, 1663929585.503, 1.76, SICK_SENSORS),
-    "embark_ros1": (EMBARK1, 1604515190.231, 7.59, EMBARK_TOPICS),
-    "embark_mcap": (EMBARK2, 1604515190.231, 7.59, EMBARK_TOPICS),
+    "sick_db3": (SICK_DB3, 1663929585.503, 1.76, SICK_SENSORS),
+    "embark_ros1": (EMBARK_ROS1, 1604515190.231, 7.59, EMBARK_TOPICS),
+    "embark_mcap": (EMBARK_MCAP, 1604515190.231, 7.59, EMBARK_TOPICS),
     "fuse": (
         FUSE,
         112.540,
@@ -93,7 +94,7 @@ CATALOGUE: dict[str, tuple[Path, float, float, dict[str, tuple[str, int]]]] = {
             "/imu": ("sensor_msgs/msg/Imu", 2253),
         },
     ),
-    "leg_tracker": (LEG, 1403201183.688, 125.99, {"/scan": (LS, 1265)}),
+    "leg_tracker": (LEG_TRACKER, 1403201183.688, 125.99, {"/scan": (LS, 1265)}),
     "ccny": (CCNY, 1282836371.070, 35.81, {"/scan": (LS, 360)}),
     "gridmap": (GRIDMAP, 1600035091.055, 9.60, {"/grid_map": ("grid_map_msgs/msg/GridMap", 4)}),
     "nav2_zstd": (
@@ -165,7 +166,7 @@ def first(bag: Bag, topic: str) -> Any:
 
 
 def test_sick_scan_cloud_and_tf_with_slashes() -> None:
-    with open_bag(SICK1) as bag:
+    with open_bag(SICK_ROS1) as bag:
         scan, cloud = first(bag, "/sick_lms_1xx/scan"), first(bag, "/cloud")
         tf = first(bag, "/tf").transforms[0]
         assert bag.topics_of_type(SCAN_TYPES) == [
@@ -190,7 +191,7 @@ def test_sick_scan_cloud_and_tf_with_slashes() -> None:
 
 
 def test_embark_cloud_layout_and_odometry() -> None:
-    with open_bag(EMBARK1) as bag:
+    with open_bag(EMBARK_ROS1) as bag:
         clouds = [m for _, _, m in bag.messages("/luminar_pointcloud")]
         odom = first(bag, "/base_pose_ground_truth")
         scan = first(bag, "/base_scan")
@@ -218,7 +219,7 @@ def test_fuse_leg_tracker_and_ccny_scans() -> None:
         assert not bag.topics_of_type(TF_TYPES)
     assert (scan.header.frame_id, len(scan.ranges)) == ("base_scan", 360)
     assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_footprint")
-    with open_bag(LEG) as bag:
+    with open_bag(LEG_TRACKER) as bag:
         scan = first(bag, "/scan")
     assert (scan.header.frame_id, len(scan.ranges)) == ("laser", 512)
     assert scan.angle_min == pytest.approx(-np.pi / 2, abs=1e-3)
@@ -250,7 +251,7 @@ def pairs(bag: Bag, topic: str) -> list[tuple[int, Any]]:
 
 
 def test_sick_db3_copy_gives_the_same_data() -> None:
-    with open_bag(SICK1) as ros1, open_bag(SICK2) as ros2:
+    with open_bag(SICK_ROS1) as ros1, open_bag(SICK_DB3) as ros2:
         kept = {n: (t.msgtype, t.count) for n, t in ros1.topics.items() if n in ros2.topics}
         assert kept == {n: (t.msgtype, t.count) for n, t in ros2.topics.items()}
         assert ros2.end_ns == ros1.end_ns
@@ -276,7 +277,7 @@ def test_sick_db3_copy_gives_the_same_data() -> None:
 
 
 def test_embark_mcap_copy_gives_the_same_data() -> None:
-    with open_bag(EMBARK1) as ros1, open_bag(EMBARK2) as ros2:
+    with open_bag(EMBARK_ROS1) as ros1, open_bag(EMBARK_MCAP) as ros2:
         assert (ros1.start_ns, ros1.end_ns) == (ros2.start_ns, ros2.end_ns)
         for topic in ("/luminar_pointcloud", "/base_scan", "/base_pose_ground_truth"):
             for (t1, m1), (t2, m2) in zip(pairs(ros1, topic), pairs(ros2, topic), strict=True):
@@ -337,26 +338,26 @@ def test_nav2_whole_file_zstd_has_no_usable_topic(tmp_path: Path) -> None:
 
 def test_standalone_storage_files_and_metadata_path(tmp_path: Path) -> None:
     db3 = tmp_path / "sick.db3"
-    shutil.copy(next(SICK2.glob("*.db3")), db3)
+    shutil.copy(next(SICK_DB3.glob("*.db3")), db3)
     mcap = tmp_path / "dir" / "embark.mcap"
     mcap.parent.mkdir()
-    shutil.copy(next(EMBARK2.glob("*.mcap")), mcap)
+    shutil.copy(next(EMBARK_MCAP.glob("*.mcap")), mcap)
     with open_bag(db3) as bag:
         assert bag.topics["/sick_lms_1xx/scan"].count == 89
     with open_bag(mcap.parent) as bag:  # a folder holding one storage file, no metadata.yaml
         assert bag.topics["/luminar_pointcloud"].count == 5
-    with open_bag(str(EMBARK2 / "metadata.yaml")) as bag:
-        assert bag.paths == (EMBARK2,)
+    with open_bag(str(EMBARK_MCAP / "metadata.yaml")) as bag:
+        assert bag.paths == (EMBARK_MCAP,)
 
 
 def test_wrong_suffixes_are_sniffed(tmp_path: Path) -> None:
     ros1 = tmp_path / "scans.data"
-    shutil.copy(LEG, ros1)
+    shutil.copy(LEG_TRACKER, ros1)
     with open_bag(ros1) as bag:
         assert bag.topics["/scan"].count == 1265
         assert bag.paths == (ros1,)
     db3 = tmp_path / "sick.sqlite"
-    shutil.copy(next(SICK2.glob("*.db3")), db3)
+    shutil.copy(next(SICK_DB3.glob("*.db3")), db3)
     with open_bag(db3) as bag:
         assert bag.topics["/tf"].count == 17
 
@@ -383,7 +384,7 @@ def test_split_ros1_recording(tmp_path: Path) -> None:
 
 
 def test_time_ranges() -> None:
-    with open_bag(LEG) as bag:
+    with open_bag(LEG_TRACKER) as bag:
         assert resolve_time(None, bag) is None
         assert resolve_time("12.5", bag) == bag.start_ns + 12_500_000_000
         assert resolve_time(0, bag) == bag.start_ns
@@ -407,7 +408,7 @@ def test_time_ranges() -> None:
         bag.require_messages("/scan", start, end)
         with pytest.raises(InputError, match="starts after the bag's last message") as info:
             bag.require_messages("/scan", resolve_time("200", bag), resolve_time("300", bag))
-        assert LEG.name in str(info.value)
+        assert LEG_TRACKER.name in str(info.value)
         with pytest.raises(InputError, match=r"between 10\.000 s and 10\.001 s"):
             bag.require_messages("/scan", start, start + 1_000_000)
         with pytest.raises(InputError, match="ends before it starts"):
@@ -422,7 +423,7 @@ def test_missing_topic_lists_the_ones_there_are() -> None:
             bag.require("/scan", POINT_CLOUD2)
         assert bag.require("scan").name == "/scan"  # the leading slash may be left out
         assert bag.pick_topic(SCAN_TYPES).name == "/scan"
-    with open_bag(SICK1) as bag, pytest.raises(InputError, match="several"):
+    with open_bag(SICK_ROS1) as bag, pytest.raises(InputError, match="several"):
         bag.pick_topic(SCAN_TYPES)
 
 
@@ -482,9 +483,9 @@ def test_legacy_rosrecord_is_refused() -> None:
 @pytest.mark.parametrize("fraction", [0.5, 0.95])
 def test_truncated_bags(tmp_path: Path, fraction: float) -> None:
     for src, name, match in [
-        (SICK1, "cut.bag", "index is missing or damaged.*rosbag reindex"),
-        (next(SICK2.glob("*.db3")), "cut.db3", "sqlite3 file is truncated or damaged"),
-        (next(EMBARK2.glob("*.mcap")), "cut.mcap", "MCAP file is truncated or damaged"),
+        (SICK_ROS1, "cut.bag", "index is missing or damaged.*rosbag reindex"),
+        (next(SICK_DB3.glob("*.db3")), "cut.db3", "sqlite3 file is truncated or damaged"),
+        (next(EMBARK_MCAP.glob("*.mcap")), "cut.mcap", "MCAP file is truncated or damaged"),
     ]:
         cut = tmp_path / name
         data = src.read_bytes()
@@ -493,7 +494,7 @@ def test_truncated_bags(tmp_path: Path, fraction: float) -> None:
 
 
 def test_damaged_chunk_fails_while_reading(tmp_path: Path) -> None:
-    data = bytearray(SICK1.read_bytes())
+    data = bytearray(SICK_ROS1.read_bytes())
     middle = len(data) // 2
     data[middle : middle + 64] = b"\xff" * 64  # inside a bz2 chunk: the index is still fine
     bad = tmp_path / "bad.bag"
@@ -526,7 +527,7 @@ def test_not_bags(tmp_path: Path) -> None:
     folder = tmp_path / "nothing"
     folder.mkdir()
     input_error(folder, "no bag in this folder")
-    input_error([SICK1, text], "split ROS1 recording")
+    input_error([SICK_ROS1, text], "split ROS1 recording")
 
 
 def test_bag_without_messages(tmp_path: Path) -> None:

@@ -5,12 +5,8 @@ tests/test_bag2world_carmen.py."""
 
 from __future__ import annotations
 
-import bz2
-import gzip
 import math
 import time
-from collections.abc import Sequence
-from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
@@ -25,72 +21,24 @@ from scan2terrain.readers.carmen import RANGE_MIN, LaserScan, Odometry
 from scan2terrain.readers.points import hits_of
 from scan2terrain.readers.scans import plan_bag, posed_scans, read_tf
 from scan2terrain.types import ScanCounts
-from tests.carmen import DEFAULT_LOG, carmen_scans, read_carmen
-
-T0 = 1_134_864_629.5  # seconds, as the logs' ipc_timestamps
-Pose = tuple[float, float, float]
-
-
-# --- writing logs -------------------------------------------------------------------------------
-
-
-def fmt(values: Sequence[float]) -> str:
-    return " ".join(f"{v:.6f}" for v in values)
-
-
-def flaser(ranges: Sequence[float], laser: Pose, odom: Pose, t: float, kind: str = "FLASER") -> str:
-    return f"{kind} {len(ranges)} {fmt(ranges)} {fmt(laser)} {fmt(odom)} {t:.6f} host {t - T0:.6f}"
-
-
-def robotlaser(
-    ranges: Sequence[float],
-    laser: Pose,
-    robot: Pose,
-    t: float,
-    *,
-    start: float = -math.pi / 2,
-    res: float = math.radians(45),
-    fov: float = math.pi,
-    max_range: float = 30.0,
-    laser_type: int = 0,
-    remissions: Sequence[float] = (),
-    kind: str = "ROBOTLASER1",
-) -> str:
-    config = f"{laser_type} {start:.6f} {fov:.6f} {res:.6f} {max_range:.6f} 0.010000 0"
-    rem = f"{len(remissions)} {fmt(remissions)}".strip()
-    return (
-        f"{kind} {config} {len(ranges)} {fmt(ranges)} {rem} {fmt(laser)} {fmt(robot)} "
-        f"0.1 0.0 0.5 0.3 1000000.0 {t:.6f} host {t - T0:.6f}"
-    )
-
-
-def odom_line(pose: Pose, t: float) -> str:
-    return f"ODOM {fmt(pose)} 0.100000 0.000000 0.000000 {t:.6f} host {t - T0:.6f}"
-
-
-def ns(t: float) -> int:
-    """A stamp as the log writes it (6 decimals), in nanoseconds."""
-    return int(Decimal(f"{t:.6f}") * 10**9)
-
-
-def compose(a: Pose, b: Pose) -> Pose:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
-
-
-def write(path: Path, lines: Sequence[str], compression: str | None = None) -> Path:
-    text = ("\n".join(lines) + "\n").encode()
-    if compression == "gz":
-        text = gzip.compress(text, mtime=0)
-    elif compression == "bz2":
-        text = bz2.compress(text)
-    path.write_bytes(text)
-    return path
-
-
-#: Odometry of a robot driving along x and turning a little.
-ODOM: list[Pose] = [(0.1 * k, 0.02 * k, 0.05 * k) for k in range(6)]
-RANGES = [1.0, 2.0, 3.0, 4.0, 5.0]
+from tests.carmen import (
+    DAMAGED,
+    DEFAULT_LOG,
+    GOOD,
+    ODOM,
+    RANGES,
+    T0,
+    Pose,
+    carmen_scans,
+    compose,
+    damaged_log,
+    flaser,
+    ns,
+    odom_line,
+    read_carmen,
+    robotlaser,
+    write,
+)
 
 
 def raw_log(tmp: Path, mount: Pose = (0.2, 0.0, 0.0), *, param: bool = True) -> Path:
@@ -495,106 +443,6 @@ def test_a_missing_log_is_named_as_a_log(tmp_path: Path) -> None:
 
 
 # --- damaged input ------------------------------------------------------------------------------
-
-GOOD = flaser(RANGES, ODOM[0], ODOM[0], T0)
-GOOD_RL = robotlaser(RANGES, ODOM[0], ODOM[0], T0)
-
-#: case -> (the log's lines, or bytes; what the one line says)
-DAMAGED: dict[str, tuple[list[str] | bytes, str]] = {
-    "cut short": ([GOOD, GOOD[:60]], "line 2: FLASER is cut short: has 8 fields, expected 16"),
-    "not a number": (
-        [GOOD.replace(" 3.000000 ", " 3.0x0 ")],
-        "line 1: FLASER field 5 '3.0x0' is not a number",
-    ),
-    "count that does not match": (
-        [GOOD.replace("FLASER 5 ", "FLASER 6 ")],
-        "line 1: FLASER is cut short: has 16 fields, expected 17 (the count, 6 readings",
-    ),
-    "count that is not a count": (
-        [GOOD.replace("FLASER 5 ", "FLASER 5.0 ")],
-        "line 1: FLASER count of readings '5.0' is not a count",
-    ),
-    "non-finite range": (
-        [GOOD.replace(" 3.000000 ", " nan ")],
-        "line 1: FLASER reading 3 is nan: not a range (finite, >= 0)",
-    ),
-    "infinite range": (
-        [GOOD.replace(" 3.000000 ", " inf ")],
-        "line 1: FLASER reading 3 is inf: not a range",
-    ),
-    "negative range": (
-        [GOOD.replace(" 3.000000 ", " -3.000000 ")],
-        "line 1: FLASER reading 3 is -3.0: not a range",
-    ),
-    "no beams": (["FLASER 0 0 0 0 0 0 0 1.0 host 0"], "line 1: FLASER has no readings (count 0)"),
-    "millions of beams": (
-        ["FLASER 5000000 1 2 3"],
-        "line 1: FLASER says 5,000,000 readings: more than 100,000, not a 2D laser scan",
-    ),
-    "fov over a turn": (
-        [robotlaser(RANGES, ODOM[0], ODOM[0], T0, fov=7.0)],
-        "line 1: ROBOTLASER1 field of view 7.0 rad is not in (0, 2 pi]",
-    ),
-    "absurd max range": (
-        [robotlaser(RANGES, ODOM[0], ODOM[0], T0, max_range=1e6)],
-        "line 1: ROBOTLASER1 maximum range 1000000.0 m is not in (0, 1000]",
-    ),
-    "no resolution": (
-        [robotlaser(RANGES, ODOM[0], ODOM[0], T0, res=0.0)],
-        "line 1: ROBOTLASER1 angular resolution 0.0 rad over 5 readings is not a 2D scan",
-    ),
-    "remissions cut short": (
-        [GOOD_RL.replace(" 0 0.000000 0.000000 0.000000 0.000000", " 9 0.000000 0.000000", 1)],
-        "line 1: ROBOTLASER1 ",
-    ),
-    "non-finite pose": (
-        [
-            GOOD.replace(
-                " 0.000000 0.000000 0.000000 0.000000 0.000000 0.000000 ", " inf 0 0 0 0 0 "
-            )
-        ],
-        "line 1: FLASER has a pose value that is not finite",
-    ),
-    "bad timestamp": (
-        [GOOD.replace(f"{T0:.6f} host", "yesterday host")],
-        "line 1: FLASER ipc_timestamp 'yesterday' is not a time in seconds",
-    ),
-    "resolution PARAM not a number": (
-        ["PARAM laser_front_laser_resolution fine nohost 0", GOOD],
-        "line 1: PARAM laser_front_laser_resolution 'fine' is not a finite number",
-    ),
-    "absurd fov PARAM": (
-        ["PARAM laser_front_laser_fov 720 nohost 0", GOOD],
-        "line 1: PARAM laser_front_laser_fov 720 is not in (0, 360] deg",
-    ),
-    "absurd offset PARAM": (
-        ["PARAM robot_frontlaser_offset 1e9 nohost 0", GOOD],
-        "line 1: PARAM robot_frontlaser_offset 1e+09 is not a laser's offset",
-    ),
-    "empty log": ([], "the log is empty"),
-    "comments only": (["# CARMEN Logfile"], "no laser records (FLASER, RLASER, ROBOTLASER1"),
-    "no laser lines": (
-        [odom_line(ODOM[0], T0), "PARAM robot_use_laser on nohost 0"],
-        "no laser records (FLASER, RLASER, ROBOTLASER1, ROBOTLASER2): nothing to map; the log "
-        "holds ODOM 1, PARAM 1",
-    ),
-    "binary junk": (
-        b"# CARMEN Logfile\nFLASER \x00\x01\x02\xff\xfe\n",
-        "line 2 holds binary data (byte 0x00): not a CARMEN log",
-    ),
-    "junk record": (["$%& 1 2 3", GOOD], "line 1: '$%&' is not a CARMEN record type"),
-    "odom cut short": (["ODOM 1 2 3 0 0 0 1.0", GOOD], "line 1: ODOM is cut short: has 8 fields"),
-}
-
-
-def damaged_log(tmp: Path, case: str) -> tuple[Path, str]:
-    content, message = DAMAGED[case]
-    path = tmp / "damaged.clf"
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    else:
-        path.write_text("".join(f"{line}\n" for line in content))
-    return path, message
 
 
 @pytest.mark.parametrize("case", sorted(DAMAGED))

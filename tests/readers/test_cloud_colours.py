@@ -12,12 +12,7 @@ import pytest
 from scan2terrain.errors import InputError
 from scan2terrain.readers._cloud_common import rgb8
 from scan2terrain.readers.cloudfile import read_cloud
-
-CLOUDS = Path(__file__).resolve().parents[2] / "fixtures" / "clouds"
-OFFICE = CLOUDS / "pc_pcl_office1_organized/office1.pcd"
-SIMPLE_LAS = CLOUDS / "pc_las_simple_twin/simple.las"
-SIMPLE_LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
-AUTZEN = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
+from tests.fixtures import AUTZEN, OFFICE, SIMPLE_LAS, SIMPLE_LAZ
 
 XYZ = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.5], [-1.0, 0.25, 2.0]])
 RGB = np.array([[255, 0, 0], [0, 255, 0], [12, 34, 56], [200, 100, 1]], dtype=np.uint8)

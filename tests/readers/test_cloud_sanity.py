@@ -25,13 +25,9 @@ import pytest
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._limits import MAX_COORDINATE_M
+from tests.fixtures import AUTZEN, AUTZEN_CSV, OFFICE, SIMPLE_LAS, SIMPLE_LAZ, STREET
 from tests.mutation_runner import Case, Outcome, one_line, run_cases
 
-ROOT = Path(__file__).resolve().parents[2]
-CLOUDS = ROOT / "fixtures/clouds"
-SIMPLE_LAS = CLOUDS / "pc_las_simple_twin/simple.las"
-SIMPLE_LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
-AUTZEN_LAZ = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
 LIMIT_BYTES = 3 << 30
 TIMEOUT_S = 60
 WORLD = ["--simulator", "gz", "--no-preview"]
@@ -224,7 +220,7 @@ def test_las_header_checks_read_the_fixtures(tmp_path: Path) -> None:
     from scan2terrain.readers.cloudfile import read_cloud
     from scan2terrain.readers.las import iter_las, las_info
 
-    for path in (SIMPLE_LAS, SIMPLE_LAZ, AUTZEN_LAZ):
+    for path in (SIMPLE_LAS, SIMPLE_LAZ, AUTZEN):
         cloud = read_cloud(path)
         info = las_info(path)
         streamed = np.concatenate(list(iter_las(path)))
@@ -290,7 +286,7 @@ def _laz_inputs(tmp: Path) -> dict[str, tuple[Path, list[str]]]:
     # Seeded: two bytes of the laszip VLR's payload set to random values, in both fixtures
     # (simple.laz is one chunk, so any chunk size from its point count up passes the table).
     rng = np.random.default_rng(28)
-    for seed in (SIMPLE_LAZ, AUTZEN_LAZ):
+    for seed in (SIMPLE_LAZ, AUTZEN):
         data = seed.read_bytes()
         payload = _laszip_payload(data)
         length = struct.unpack_from("<H", data, payload - 54 + 20)[0]
@@ -334,7 +330,7 @@ def _sane_xyz(o: Outcome) -> None:
     """A converted cloud: the fixture's points exactly (the VLR fields lazrs does not decode by
     -- LASzip's version, options, special EVLRs -- change nothing)."""
     name = o.name.split()[1]
-    seed = SIMPLE_LAZ if name == SIMPLE_LAZ.stem else AUTZEN_LAZ
+    seed = SIMPLE_LAZ if name == SIMPLE_LAZ.stem else AUTZEN
     written = np.loadtxt(Path(o.argv[-1]))
     from scan2terrain.readers.cloudfile import read_cloud
 
@@ -364,8 +360,6 @@ def test_flipped_laszip_vlr_bytes_are_read_or_refused_never_a_signal(
 
 # --- CSV/XYZ and PCD: the coordinates themselves --------------------------------------------
 
-AUTZEN_CSV = CLOUDS / "pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"
-STREET_XYZ = CLOUDS / "pc_xyz_street_lidar/multisensor_lidar.xyz"
 PCD_HEAD = (
     "# .PCD v0.7\nVERSION 0.7\nFIELDS {f}\nSIZE {s}\nTYPE {t}\nCOUNT 1 1 1\nWIDTH {n}\n"
     "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {d}\n"
@@ -426,11 +420,11 @@ TEXT_AND_PCD: dict[str, tuple[Callable[[Path], Path], str]] = {
         "line 107: y = -1e+17 m",
     ),
     "xyz-y-1e17": (
-        lambda t: _text_with(STREET_XYZ, t / "y17.xyz", 3, 1, "1e17"),
+        lambda t: _text_with(STREET, t / "y17.xyz", 3, 1, "1e17"),
         "line 3: y = 1e+17 m",
     ),
     "xyz-x-1e-300": (
-        lambda t: _text_with(STREET_XYZ, t / "x-300.xyz", 33656, 0, "1e-300"),
+        lambda t: _text_with(STREET, t / "x-300.xyz", 33656, 0, "1e-300"),
         "line 33656: x = 1e-300 m",
     ),
     "xyz-comments": (  # lines are the file's, comments and blank lines counted
@@ -512,7 +506,7 @@ def test_coordinates_within_the_limits_and_no_return_marks_are_read(tmp_path: Pa
         ),
     ):
         np.testing.assert_array_equal(read_cloud(path).points, edge[:2], err_msg=str(path))
-    office = read_cloud(CLOUDS / "pc_pcl_office1_organized/office1.pcd")  # NaN: no return
+    office = read_cloud(OFFICE)  # NaN: no return
     assert office.records > len(office.points) > 0
 
 

@@ -12,16 +12,16 @@ import pytest
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers.cloudfile import SUFFIXES, Cloud, read_cloud
-
-CLOUDS = Path(__file__).resolve().parents[2] / "fixtures" / "clouds"
-HDL_PCD = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/251370668.pcd"
-HDL_PLY = CLOUDS / "pc_hdl32_scan_pcd_ply_twin/target.ply"
-OFFICE = CLOUDS / "pc_pcl_office1_organized/office1.pcd"
-SIMPLE_LAS = CLOUDS / "pc_las_simple_twin/simple.las"
-SIMPLE_LAZ = CLOUDS / "pc_las_simple_twin/simple.laz"
-AUTZEN = CLOUDS / "pc_laz_autzen_trim/autzen_trim.laz"
-STREET = CLOUDS / "pc_xyz_street_lidar/multisensor_lidar.xyz"
-AUTZEN_CSV = CLOUDS / "pc_csv_autzen_shuffled_cols/autzen-point-format-3.txt"
+from tests.fixtures import (
+    AUTZEN,
+    AUTZEN_CSV,
+    HDL_PCD,
+    HDL_PLY,
+    OFFICE,
+    SIMPLE_LAS,
+    SIMPLE_LAZ,
+    STREET,
+)
 
 
 def open3d_points(path: Path) -> np.ndarray:

@@ -21,10 +21,17 @@ import pytest
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers.cloudfile import read_cloud
+from tests.fixtures import (
+    AUTZEN,
+    CCNY,
+    EMBARK_MCAP,
+    MOON,
+    ROOT,
+    SICK_DB3,
+    SIMPLE_LAS,
+    SIMPLE_LAZ,
+)
 
-ROOT = Path(__file__).resolve().parents[2]
-SIMPLE_LAS = ROOT / "fixtures/clouds/pc_las_simple_twin/simple.las"
-SIMPLE_LAZ = ROOT / "fixtures/clouds/pc_las_simple_twin/simple.laz"
 #: In simple.laz (1065 points, one chunk of LASzip's 50,000): the points start at 333 (the
 #: int64 offset to the chunk table), the table at 18203 (uint32 version, uint32 count).
 LAZ_START, LAZ_TABLE = 333, 18203
@@ -117,7 +124,7 @@ def test_laz_chunk_table_checks_pass_real_files(tmp_path: Path) -> None:
     """LASzip's own files (one chunk; several chunks) and lazrs' (point format 6, layered)."""
     import laspy
 
-    autzen = ROOT / "fixtures/clouds/pc_laz_autzen_trim/autzen_trim.laz"
+    autzen = AUTZEN
     assert len(read_cloud(autzen).points) == 110_000
     assert len(read_cloud(SIMPLE_LAZ).points) == 1065
     path = tmp_path / "f6.laz"
@@ -380,7 +387,7 @@ def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path
 
     from scan2terrain.readers.dem import read_dem
 
-    src = ROOT / "fixtures/terrain/dem_moon_polar_geotiff/dem_moon.tif"
+    src = MOON
     path = tmp_path / "dem.tif"
     shutil.copyfile(src, path)
     data = bytearray(path.read_bytes())
@@ -398,31 +405,30 @@ def test_dem_pixel_scale_that_resamples_beyond_the_limit_names_the_file(tmp_path
 def test_bag_errors_stay_one_short_line() -> None:
     from rosbags.rosbag1 import ReaderError
 
-    from scan2terrain.readers._bag_errors import _explain
+    from scan2terrain.readers._bag_errors import explain
 
-    text = _explain(UnicodeDecodeError("utf-8", b"x" * 5000 + b"\xff", 5000, 5001, "bad"))
+    text = explain(UnicodeDecodeError("utf-8", b"x" * 5000 + b"\xff", 5000, 5001, "bad"))
     assert text == "the bag is damaged: it holds text (a name or a definition) that is not UTF-8"
     # rosbags' own sentences are quoted, on one short line; Python's texts are not shown.
-    assert _explain(ReaderError("Could not parse:\n'MSG: a\nb'")) == (
+    assert explain(ReaderError("Could not parse:\n'MSG: a\nb'")) == (
         "cannot read the bag (rosbags: \"Could not parse: 'MSG: a b'\")"
     )
-    assert len(_explain(ReaderError("x" * 5000))) < 300
-    assert _explain(ValueError("x" * 5000), storage="mcap") == (
+    assert len(explain(ReaderError("x" * 5000))) < 300
+    assert explain(ValueError("x" * 5000), storage="mcap") == (
         "the MCAP file is truncated or damaged: rosbags cannot parse it (-v shows where it fails)"
     )
-    assert "corrupt length field" in _explain(MemoryError())
+    assert "corrupt length field" in explain(MemoryError())
 
 
 # --- bags cut to a few bytes: one sentence of ours, never a library's words (issue 25 item 12) ----
 
-BAGS = ROOT / "fixtures/bags"
 #: Layout -> (the fixture whose storage file is cut, the storage file's suffix).
 CUT_BAGS = {
-    "bag file": (BAGS / "bag1_ccny_hokuyo_scan/demo.bag", ".bag"),
-    "mcap file": (BAGS / "bag2_derived_embark_luminar_mcap", ".mcap"),
-    "db3 file": (BAGS / "bag2_derived_sick_lms1xx_db3", ".db3"),
-    "mcap folder": (BAGS / "bag2_derived_embark_luminar_mcap", ".mcap"),
-    "db3 folder": (BAGS / "bag2_derived_sick_lms1xx_db3", ".db3"),
+    "bag file": (CCNY, ".bag"),
+    "mcap file": (EMBARK_MCAP, ".mcap"),
+    "db3 file": (SICK_DB3, ".db3"),
+    "mcap folder": (EMBARK_MCAP, ".mcap"),
+    "db3 folder": (SICK_DB3, ".db3"),
 }
 MAGIC_ONLY = {
     ".bag": [

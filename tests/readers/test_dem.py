@@ -9,7 +9,6 @@ from __future__ import annotations
 import importlib.util
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -17,56 +16,8 @@ import tifffile
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers.dem import EARTH_RADIUS, haversine, read_dem
-
-TERRAIN = Path(__file__).resolve().parents[2] / "fixtures/terrain"
-SFBAY = TERRAIN / "dem_sfbay_squared_geotiff/dem_squared.tif"
-MOON = TERRAIN / "dem_moon_polar_geotiff/dem_moon.tif"
-
-#: gz-common Dem_TEST.cc, dem_squared.tif.
-GZ_SFBAY = {
-    "side": 129,
-    "world_width": 3139.7456,
-    "world_height": 3984.4849,
-    "min": 65.3583,
-    "max": 318.441,
-    # Elevation(x, y): x = column, y = row from the top (north).
-    "corners": {(0, 0): 215.82324, (128, 0): 216.04961, (0, 128): 142.2274, (128, 128): 209.14784},
-}
-
-PROJECTED_METRE = {1024: 1, 1025: 1, 3076: 9001}
-GEOGRAPHIC_DEG = {1024: 2, 1025: 1, 2048: 4326, 2054: 9102}
-
-
-def write_geotiff(
-    path: Path,
-    raster: np.ndarray,
-    *,
-    scale: tuple[float, float] | None = (1.0, 1.0),
-    tie: tuple[float, float] = (0.0, 0.0),
-    keys: dict[int, int] | None = None,
-    nodata: str | None = None,
-    extra: tuple[Any, ...] = (),
-    photometric: str | None = None,
-) -> Path:
-    """A GeoTIFF of ``raster`` (row 0 = north) with the raster's corner (0, 0) at ``tie``."""
-    tags: list[Any] = []
-    if scale is not None:
-        tags += [
-            (33550, "d", 3, (scale[0], scale[1], 0.0), True),
-            (33922, "d", 6, (0.0, 0.0, 0.0, tie[0], tie[1], 0.0), True),
-        ]
-    k = PROJECTED_METRE if keys is None else keys
-    if k:
-        directory = [1, 1, 0, len(k)]
-        for key, value in sorted(k.items()):
-            directory += [key, 0, 1, value]
-        tags.append((34735, "H", len(directory), tuple(directory), True))
-    if nodata is not None:
-        tags.append((42113, "s", 0, nodata, True))
-    tags += list(extra)
-    tifffile.imwrite(path, raster, extratags=tags, photometric=photometric)
-    return path
-
+from tests.fixtures import GZ_SFBAY, MOON, SFBAY
+from tests.geotiff import GEOGRAPHIC_DEG, PROJECTED_METRE, write_geotiff
 
 # --- gz-common's numbers ----------------------------------------------------------------------
 

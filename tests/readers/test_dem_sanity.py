@@ -28,8 +28,9 @@ from PIL import Image
 from scan2terrain.cli import main
 from scan2terrain.readers._limits import MAX_COORDINATE_M, MAX_ELEVATION_M
 from scan2terrain.readers.dem import read_dem
+from tests.fixtures import MOON, SFBAY
+from tests.geotiff import write_geotiff
 from tests.mutation_runner import Case, Outcome, run_cases
-from tests.readers.test_dem import MOON, SFBAY, write_geotiff
 
 # --- editing a TIFF's first directory --------------------------------------------------------
 

@@ -26,14 +26,9 @@ import numpy as np
 import pytest
 
 from scan2terrain.errors import InputError
+from tests.fixtures import FIXTURES, MOON, NAV2, ROOT, SFBAY, SIMPLE_LAS
 from tests.mutation_runner import Case, Outcome, run_cases
 
-ROOT = Path(__file__).resolve().parents[2]
-FIXTURES = ROOT / "fixtures"
-SFBAY = FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif"
-MOON = FIXTURES / "terrain/dem_moon_polar_geotiff/dem_moon.tif"
-SIMPLE_LAS = FIXTURES / "clouds/pc_las_simple_twin/simple.las"
-ZSTD_FOLDER = FIXTURES / "bags/bag2_nav2_collision_mcap_zstd"
 #: Address space of a command's child: a normal run takes ~1.2 GiB (see test_mutations).
 LIMIT_BYTES = 3 << 30
 #: Seconds before a command counts as hung.
@@ -52,7 +47,7 @@ def one_line(o: Outcome) -> str:
 
 
 def _room_bag(folder: Path) -> Path:
-    from tests.test_mutations import room
+    from tests.seeds import room
 
     path = folder / "room.bag"
     room("tf").write(path, "ros1")
@@ -70,7 +65,7 @@ def _scan_bomb(path: Path, lines: int = 20_000_000) -> Path:
 
 def _pole_dem(path: Path) -> Path:
     """The SF Bay GeoTIFF with its tie point's latitude set to 89.99 degrees."""
-    from tests.test_mutations import tiff_entries
+    from tests.seeds import tiff_entries
 
     data = bytearray(SFBAY.read_bytes())
     ties = struct.unpack_from("<I", data, tiff_entries(bytes(data))[33922] + 8)[0]
@@ -347,13 +342,13 @@ def test_a_rosbag2_folder_compressed_per_file_is_capped_too(own_tmp: Path, tmp_p
     without a limit; they go through the same capped decompression now."""
     from scan2terrain.readers.bag import open_bag
 
-    with open_bag(ZSTD_FOLDER) as b:  # genuine: 20 KB -> 2.4 MB, 120 times
+    with open_bag(NAV2) as b:  # genuine: 20 KB -> 2.4 MB, 120 times
         assert b.message_count == 693
         staged = list(own_tmp.iterdir())
         assert len(staged) == 1 and staged[0].name.startswith(".s2t-bag-")
     assert list(own_tmp.iterdir()) == []
     folder = tmp_path / "bombed"
-    shutil.copytree(ZSTD_FOLDER, folder)
+    shutil.copytree(NAV2, folder)
     _zstd_bomb(folder / "_tmp_cm_bag_0.mcap.zstd")
     with pytest.raises(InputError, match="decompresses to more than") as info, open_bag(folder):
         pass
@@ -365,7 +360,7 @@ def test_a_genuine_zstd_bag_file_reads(own_tmp: Path, tmp_path: Path) -> None:
     from backports import zstd
 
     from scan2terrain.readers.bag import open_bag
-    from tests.test_mutations import room
+    from tests.seeds import room
 
     room("tf").write(tmp_path / "r", "mcap")
     mcap = next((tmp_path / "r").glob("*.mcap")).read_bytes()
@@ -413,14 +408,14 @@ def test_temporary_bag_folders_are_locked_and_swept_after_a_kill(own_tmp: Path) 
             assert holder.stdout is not None
             live = Path(holder.stdout.readline().strip())
             assert live.parent == own_tmp and live.name.startswith(".s2t-bag-")
-            with open_bag(ZSTD_FOLDER):
+            with open_bag(NAV2):
                 pass
             assert not stale.exists()  # swept
             assert (live / "bag.mcap").exists()  # its owner is alive and holds the lock
             holder.send_signal(signal.SIGKILL)
             holder.wait(10)
             assert live.exists()  # a kill leaves it...
-            with open_bag(ZSTD_FOLDER):
+            with open_bag(NAV2):
                 pass
             assert not live.exists()  # ...and the next bag read removes it
         finally:
@@ -431,7 +426,7 @@ def test_temporary_bag_folders_are_locked_and_swept_after_a_kill(own_tmp: Path) 
 
 
 def _bt_with_res(tmp_path: Path, res: str) -> Path:
-    from tests.test_mutations import bt_file
+    from tests.seeds import bt_file
 
     path, _ = bt_file(tmp_path)
     path.write_bytes(re.sub(rb"\nres \S+", b"\nres " + res.encode(), path.read_bytes(), count=1))
@@ -645,7 +640,7 @@ def test_duplicate_pointcloud2_fields_are_refused() -> None:
 def _tiff(src: Path, tmp_path: Path, name: str, edit: dict[int, tuple[str, int, object]]) -> Path:
     """``src`` with values of its first IFD's entries (tag -> (format, offset in the entry,
     value)) replaced."""
-    from tests.test_mutations import tiff_entries
+    from tests.seeds import tiff_entries
 
     data = bytearray(src.read_bytes())
     entries = tiff_entries(bytes(data))
@@ -707,7 +702,7 @@ def test_every_flipped_ifd_byte_is_read_or_refused(tmp_path: Path) -> None:
     """Each byte of the TIFF header and first IFD set to 0x00, 0xFF, or flipped in its lowest
     bit: 26 of them crashed (TypeError, IndexError, ValueError: exit 1)."""
     from scan2terrain.readers.dem import read_dem
-    from tests.test_mutations import tiff_entries
+    from tests.seeds import tiff_entries
 
     src = MOON.read_bytes()
     ifd = struct.unpack_from("<I", src, 4)[0]
@@ -726,7 +721,7 @@ def test_every_flipped_ifd_byte_is_read_or_refused(tmp_path: Path) -> None:
 
 
 def _geotiff(tmp_path: Path, keys: dict[int, int] | None, **kw: object) -> Path:
-    from tests.readers.test_dem import write_geotiff
+    from tests.geotiff import write_geotiff
 
     raster = np.arange(20, dtype=np.float32).reshape(4, 5)
     return write_geotiff(tmp_path / "g.tif", raster, keys=keys, **kw)  # type: ignore[arg-type]
@@ -872,7 +867,7 @@ def test_a_ply_cut_at_90_percent_is_refused_the_same_way_every_time(
 ) -> None:
     """Seen before issue 12's fix: garbage points and exit 0 in 3 of 10 runs."""
     from scan2terrain.readers.cloudfile import read_cloud
-    from tests.test_mutations import ply_list
+    from tests.seeds import ply_list
 
     data = ply_list(fmt)()
     path = tmp_path / "cut.ply"
@@ -899,7 +894,7 @@ def test_oversized_side_files_are_refused_unread(
     with pytest.raises(InputError, match="a TUM trajectory of 32 bytes, more than the 16 read"):
         tracks.read_tum(traj)
     folder = tmp_path / "r"
-    shutil.copytree(ZSTD_FOLDER, folder)
+    shutil.copytree(NAV2, folder)
     monkeypatch.setattr(_bag_source, "MAX_METADATA_BYTES", 100)
     with pytest.raises(InputError, match="larger than 100 bytes: not a rosbag2 metadata file"):
         bag.open_bag(folder)

@@ -11,7 +11,7 @@ from PIL import Image
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers import read_grey_image
-from tests.conftest import IMAGES
+from tests.fixtures import IMAGES, TERRAIN
 
 
 def test_rgb_uses_luminance_not_first_channel(tmp_path: Path) -> None:
@@ -75,7 +75,6 @@ def test_bad_images(tmp_path: Path) -> None:
 
 # --- elevation rasters are not pictures ---------------------------------------------------------
 
-TERRAIN = Path(__file__).resolve().parents[2] / "fixtures/terrain"
 DEM_FIXTURES = sorted(TERRAIN.glob("*/*.tif"))
 GEO_TAGS = [
     (33550, "d", 3, (10.0, 10.0, 0.0), True),

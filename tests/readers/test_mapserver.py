@@ -11,7 +11,8 @@ from PIL import Image
 from scan2terrain.errors import InputError
 from scan2terrain.readers import read_map_yaml
 from scan2terrain.readers.mapserver import read_map_metadata
-from tests.conftest import MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import MAPS
 
 
 def nav2_reference(

@@ -24,7 +24,7 @@ from scan2terrain.readers.scans import (
 )
 from scan2terrain.types import ScanCounts
 from tests.bagmaker import FoxgloveEncoding, ros_bag_to_foxglove_mcap, write_foxglove_mcap
-from tests.readers.test_mcap_ros1 import EMBARK
+from tests.fixtures import EMBARK_ROS1
 
 ENCODINGS: list[FoxgloveEncoding] = ["protobuf", "json"]
 T0 = 1_700_000_000_000_000_000
@@ -42,8 +42,8 @@ def one(tmp: Path, name: str, value: dict[str, Any], encoding: FoxgloveEncoding)
 def test_pointcloud_points_as_the_pointcloud2(tmp_path: Path, encoding: FoxgloveEncoding) -> None:
     from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 
-    mcap = ros_bag_to_foxglove_mcap(EMBARK, tmp_path / "e.mcap", encoding)
-    with open_bag(EMBARK) as a, open_bag(mcap) as b:
+    mcap = ros_bag_to_foxglove_mcap(EMBARK_ROS1, tmp_path / "e.mcap", encoding)
+    with open_bag(EMBARK_ROS1) as a, open_bag(mcap) as b:
         assert b.topics["/luminar_pointcloud"].msgtype == "foxglove.PointCloud"
         assert b.frame_ids("/luminar_pointcloud") == a.frame_ids("/luminar_pointcloud")
         want = [pointcloud2_xyz(m) for _, _, m in a.messages("/luminar_pointcloud")]

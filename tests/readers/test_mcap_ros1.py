@@ -21,21 +21,8 @@ from mcap.writer import Writer as McapWriter
 from scan2terrain.errors import InputError
 from scan2terrain.readers._mcap import McapFile, mcap_profile
 from scan2terrain.readers.bag import BagWarning, open_bag
-from tests.bagmaker import McapCompression, ros1_bag_to_mcap
-from tests.conftest import FIXTURES
-
-FUSE = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
-EMBARK = FIXTURES / "bags/bag1_embark_luminar_pointcloud/test.bag"
-#: id -> (compression, summary, chunked)
-LAYOUTS: dict[str, tuple[McapCompression, bool, bool]] = {
-    "zstd": ("zstd", True, True),
-    "lz4": ("lz4", True, True),
-    "none": ("none", True, True),
-    "zstd-no-summary": ("zstd", False, True),
-    "lz4-no-summary": ("lz4", False, True),
-    "unchunked": ("none", True, False),
-    "unchunked-no-summary": ("none", False, False),
-}
+from tests.bagmaker import LAYOUTS, first_chunk_data, one_message_mcap, ros1_bag_to_mcap
+from tests.fixtures import EMBARK_MCAP, EMBARK_ROS1, FUSE
 
 
 def rewrite(bag: Path, tmp: Path, layout: str) -> Path:
@@ -73,8 +60,8 @@ def test_ros1_mcap_reads_as_the_bag(tmp_path: Path, layout: str) -> None:
 
 @pytest.mark.parametrize("layout", ["lz4", "zstd-no-summary"])
 def test_ros1_mcap_pointclouds_read_as_the_bag(tmp_path: Path, layout: str) -> None:
-    mcap = rewrite(EMBARK, tmp_path, layout)
-    with open_bag(EMBARK) as a, open_bag(mcap) as b:
+    mcap = rewrite(EMBARK_ROS1, tmp_path, layout)
+    with open_bag(EMBARK_ROS1) as a, open_bag(mcap) as b:
         assert b.topics == a.topics
         got = [m for _, _, m in b.messages("/luminar_pointcloud")]
         want = [m for _, _, m in a.messages("/luminar_pointcloud")]
@@ -104,21 +91,10 @@ def test_truncated_mcap_is_refused(tmp_path: Path) -> None:
         assert "the MCAP file is truncated or damaged" in refused(half)
 
 
-def _first_chunk_data(data: bytes) -> int:
-    """Offset of the first chunk's compressed bytes in a file (after magic and header)."""
-    pos = 8
-    while True:
-        opcode, length = struct.unpack_from("<BQ", data, pos)
-        if opcode == 0x06:  # chunk: times, size, crc, compression string, data length
-            (n,) = struct.unpack_from("<I", data, pos + 9 + 28)
-            return int(pos + 9 + 32 + n + 8)
-        pos += 9 + length
-
-
 @pytest.mark.parametrize("layout", ["none", "zstd-no-summary", "lz4"])
 def test_corrupt_chunk_is_refused(tmp_path: Path, layout: str) -> None:
     data = bytearray(rewrite(FUSE, tmp_path, layout).read_bytes())
-    at = _first_chunk_data(bytes(data)) + 200
+    at = first_chunk_data(bytes(data)) + 200
     data[at : at + 8] = bytes(b ^ 0x5A for b in data[at : at + 8])
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
@@ -130,7 +106,7 @@ def test_corrupt_chunk_is_refused(tmp_path: Path, layout: str) -> None:
 
 def test_chunk_claiming_huge_size_is_refused_before_allocating(tmp_path: Path) -> None:
     data = bytearray(rewrite(FUSE, tmp_path, "zstd").read_bytes())
-    chunk = _first_chunk_data(bytes(data))
+    chunk = first_chunk_data(bytes(data))
     (n,) = struct.unpack_from("<I", data, chunk - 8 - 4 - 4)  # the compression string's length
     size_at = chunk - 8 - n - 4 - 4 - 8  # uncompressed size
     struct.pack_into("<Q", data, size_at, 1 << 50)
@@ -139,31 +115,15 @@ def test_chunk_claiming_huge_size_is_refused_before_allocating(tmp_path: Path) -
     assert "claims 1,125,899,906,842,624 bytes" in refused(bad)
 
 
-def _mcap(path: Path, channels: list[tuple[str, str, str, int | None]]) -> Path:
-    """A small MCAP: per channel (topic, message encoding, schema encoding, schema id or None
-    for a schema of its own), one message."""
-    with path.open("wb") as f:
-        w = McapWriter(f, compression=CompressionType.NONE)
-        w.start(profile="", library="test")
-        for n, (topic, encoding, schema_encoding, given) in enumerate(channels):
-            schema_id = given
-            if schema_id is None:
-                schema_id = w.register_schema("pkg/Thing", schema_encoding, b"int32 x\n")
-            cid = w.register_channel(topic, encoding, schema_id)
-            w.add_message(cid, 1000 + n, b"\x01\x00\x00\x00", 1000 + n)
-        w.finish()  # type: ignore[no-untyped-call]
-    return path
-
-
 def test_unknown_schema_encoding_only_is_refused_with_what_is_supported(tmp_path: Path) -> None:
-    bad = _mcap(tmp_path / "fb.mcap", [("/points", "flatbuffer", "flatbuffer", None)])
+    bad = one_message_mcap(tmp_path / "fb.mcap", [("/points", "flatbuffer", "flatbuffer", None)])
     problem = refused(bad)
     assert problem.startswith("no channel of this MCAP file can be read: /points: ")
     assert "supported: ros1/ros1msg" in problem
 
 
 def test_unknown_schema_encoding_beside_ros1_is_skipped_with_a_warning(tmp_path: Path) -> None:
-    path = _mcap(
+    path = one_message_mcap(
         tmp_path / "mixed.mcap",
         [("/thing", "ros1", "ros1msg", None), ("/points", "flatbuffer", "flatbuffer", None)],
     )
@@ -179,12 +139,12 @@ def test_unknown_schema_encoding_beside_ros1_is_skipped_with_a_warning(tmp_path:
 
 
 def test_missing_schema_is_refused(tmp_path: Path) -> None:
-    bad = _mcap(tmp_path / "noschema.mcap", [("/thing", "ros1", "ros1msg", 7)])
+    bad = one_message_mcap(tmp_path / "noschema.mcap", [("/thing", "ros1", "ros1msg", 7)])
     assert "names schema 7, which is missing" in refused(bad)
 
 
 def test_ros2_profile_keeps_the_rosbags_path() -> None:
-    mcap = FIXTURES / "bags/bag2_derived_embark_luminar_mcap"
+    mcap = EMBARK_MCAP
     with open_bag(mcap) as bag:
         assert not isinstance(bag._reader, McapFile)
         assert bag.container.describe() == "rosbag2, read with rosbags"

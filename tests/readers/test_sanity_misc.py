@@ -22,11 +22,9 @@ from typing import Any
 
 import pytest
 
+from tests.fixtures import BAGS, EMBARK_MCAP
 from tests.mutation_runner import Case, Outcome, one_line, run_cases
 
-ROOT = Path(__file__).resolve().parents[2]
-FIXTURES = ROOT / "fixtures"
-LUMINAR = FIXTURES / "bags/bag2_derived_embark_luminar_mcap"
 LIMIT_BYTES = 3 << 30
 TIMEOUT_S = 60
 WORLD = ["--simulator", "gz", "--no-preview"]
@@ -67,7 +65,7 @@ def first_chunk(data: bytes) -> int:
 def _room_rosbag2(folder: Path) -> tuple[Path, Path]:
     """The synthetic room as a rosbag2 MCAP folder (rosbags' writer: uncompressed chunks,
     profile ros2): (the folder, its .mcap)."""
-    from tests.test_mutations import room
+    from tests.seeds import room
 
     path = folder / "room"
     room("tf").write(path, "mcap")
@@ -77,7 +75,7 @@ def _room_rosbag2(folder: Path) -> tuple[Path, Path]:
 def _room_ros1_mcap(folder: Path, compression: str) -> Path:
     """The synthetic room as a ROS1 MCAP file (profile ros1, read by scan2terrain's reader)."""
     from tests.bagmaker import ros1_bag_to_mcap
-    from tests.test_mutations import room
+    from tests.seeds import room
 
     bag = folder / "room.tmp.bag"
     room("tf").write(bag, "ros1")
@@ -138,7 +136,7 @@ def mcap_inputs(tmp: Path) -> Inputs:
             {"at": at, "n": claim},
         )
     zstd = tmp / "ros2-zstd"
-    shutil.copytree(LUMINAR, zstd)
+    shutil.copytree(EMBARK_MCAP, zstd)
     mcap = next(zstd.glob("*.mcap"))
     at = _set_chunk_field(mcap, "size", 1_000_000)
     out["mcap-ros2-zstd-size"] = (
@@ -431,11 +429,11 @@ def meta_inputs(tmp: Path) -> Inputs:
     """The db3 and MCAP rosbag2 folders with a damaged metadata.yaml each: the file named."""
     out: Inputs = {}
     for fixture in ("bag2_derived_sick_lms1xx_db3", "bag2_derived_embark_luminar_mcap"):
-        good = (FIXTURES / "bags" / fixture / "metadata.yaml").read_bytes()
+        good = (BAGS / fixture / "metadata.yaml").read_bytes()
         for name, (damage, _) in META_CASES.items():
             folder = tmp / f"{fixture}-{name}"
             folder.mkdir()
-            for f in (FIXTURES / "bags" / fixture).iterdir():
+            for f in (BAGS / fixture).iterdir():
                 if f.suffix in (".db3", ".mcap"):
                     (folder / f.name).symlink_to(f)
             (folder / "metadata.yaml").write_bytes(damage(good))
@@ -456,7 +454,7 @@ def _room_with(variant: str, change: Callable[[list[Any]], list[Any]]) -> Any:
     import copy
     import dataclasses
 
-    from tests.test_mutations import room
+    from tests.seeds import room
 
     r = room(variant)  # cached: changed in a copy
     return dataclasses.replace(r, messages=change(copy.deepcopy(r.messages)))

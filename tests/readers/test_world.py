@@ -32,7 +32,8 @@ from scan2terrain.geometry.mesh import Mesh, boxes_mesh
 from scan2terrain.readers.world import MAX_TRIANGLES, WorldGeometry, read_world
 from scan2terrain.types import HeightGrid, Pose2D
 from scan2terrain.world.folder import write_world_folder
-from tests.conftest import FIXTURES, MAPS, write_map
+from tests.conftest import write_map
+from tests.fixtures import BOWL, FUSE, GEB079, MAPS, MOON, SFBAY
 from tests.gazebo_harness import (
     HeightmapProbe,
     ShapeProbe,
@@ -314,7 +315,7 @@ def test_one_polyline_geometry_with_an_island_in_a_hole(tmp_path: Path) -> None:
 
 def test_voxel_world_reads_back(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    geb079 = FIXTURES / "octomap/geb079.bt"
+    geb079 = GEB079
     assert main(["octree2world", str(geb079), "-o", str(out), "--geometry", "voxels", "-q"]) == 0
     for name, sim in WORLDS:
         checked = check_world_file(out / name, sim, tmp_path / sim)
@@ -322,8 +323,8 @@ def test_voxel_world_reads_back(tmp_path: Path) -> None:
 
 
 def test_dem_worlds_read_back(tmp_path: Path) -> None:
-    moon = FIXTURES / "terrain/dem_moon_polar_geotiff/dem_moon.tif"
-    sfbay = FIXTURES / "terrain/dem_sfbay_squared_geotiff/dem_squared.tif"
+    moon = MOON
+    sfbay = SFBAY
     assert main(["dem2world", str(moon), "-o", str(tmp_path / "moon"), "-q"]) == 0
     checked = check_world_file(tmp_path / "moon/world_gz.sdf", "gz", tmp_path / "moon_probe")
     assert checked["heightmap"] == 1
@@ -359,7 +360,7 @@ def test_image_world_with_sampling_reads_back(tmp_path: Path) -> None:
         None, {"terrain.height": 3.0, "world.geometry": "heightmap", "world.sampling": 2}
     )
     out = tmp_path / "out"
-    maps.image2world(FIXTURES / "images/heightmap_png_bowl/heightmap_bowl.png", out, cfg)
+    maps.image2world(BOWL, out, cfg)
     for name, sim in WORLDS:
         assert check_world_file(out / name, sim, tmp_path / sim)["heightmap"] == 1
 
@@ -367,7 +368,7 @@ def test_image_world_with_sampling_reads_back(tmp_path: Path) -> None:
 def test_bag_world_reads_back_and_from_bytes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    bag = FIXTURES / "bags/bag1_fuse_tb3_sim_scan_odom/turtlebot3.bag"
+    bag = FUSE
     out = tmp_path / "out"
     assert main(["bag2world", str(bag), "-o", str(out), "-q"]) == 0
     for name, sim in WORLDS:
