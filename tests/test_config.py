@@ -2,18 +2,53 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
+import yaml
 
 from scan2terrain.config import Config, load_config
 from scan2terrain.errors import ConfigError
 from tests.fixtures import ROOT
 
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
-@pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.yaml")), ids=lambda p: p.name)
-def test_example_configs_load(path: Path) -> None:
-    load_config(path)
+
+def set_by_hand(path: Path) -> Config:
+    """``Config()`` with every value the file sets put in by ``dataclasses.replace``, section by
+    section (YAML lists as tuples): what loading the file must give, found without the loader."""
+    data = yaml.safe_load(path.read_text())
+    fields = {
+        name: dataclasses.replace(
+            getattr(Config(), name),
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()},
+        )
+        if isinstance(values, dict)
+        else values  # a top-level value (max_pixels)
+        for name, values in data.items()
+    }
+    return dataclasses.replace(Config(), **fields)
+
+
+def test_the_example_configs_are_there() -> None:
+    assert [p.name for p in CONFIGS] == ["default.yaml", "indoor_gz.yaml", "paper.yaml"]
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_example_configs_load_to_the_values_they_set(path: Path) -> None:
+    """Each key the file sets has the file's value, every other key keeps its default."""
+    cfg = load_config(path)
+    assert cfg == set_by_hand(path)
+    if path.name != "default.yaml":
+        assert cfg != Config()  # the example changes something
+
+
+def test_paper_config_is_the_papers_tool() -> None:
+    cfg = load_config(ROOT / "configs/paper.yaml")
+    assert (cfg.filter.kind, cfg.terrain.height, cfg.terrain.unknown) == ("paper", 1.0, "obstacle")
+    assert cfg.world.simulator == "classic"
+    assert cfg.filter.size == Config().filter.size == 3  # not set by the file
 
 
 def test_default_yaml_is_the_defaults() -> None:

@@ -146,7 +146,12 @@ def test_gap_longer_than_max_gap_is_refused_but_its_samples_are_not() -> None:
     reason = track.why_not(3 * S)
     assert "gap of 4.800 s" in reason
     assert "1.000 s" in reason
-    assert PoseTrack(times, np.zeros((5, 3)), [yaw_quaternion(0)] * 5).at(3 * S) is not None
+    # Without a gap limit the gap is interpolated: x moves with time here, 3.0 m at 3 s.
+    along = np.c_[np.array(times) / S, np.zeros(5), np.zeros(5)]
+    pose = PoseTrack(times, along, [yaw_quaternion(0)] * 5).at(3 * S)
+    assert pose is not None
+    np.testing.assert_allclose(pose.translation, [3.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pose.rotation, np.eye(3), atol=1e-12)
 
 
 def test_single_sample_track_is_valid_only_at_its_time() -> None:
