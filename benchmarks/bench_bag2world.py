@@ -129,7 +129,7 @@ def _cast_kernel() -> Any:
     import numba
 
     @numba.njit(error_model="numpy", cache=False)
-    def cast(  # noqa: PLR0917 (a numba kernel takes its arrays positionally)
+    def cast(
         origin: NDArray[np.float64],
         dirs: NDArray[np.float64],
         lo: NDArray[np.float64],

@@ -175,7 +175,7 @@ def _pose(xyz: Sequence[float], q_xyzw: Sequence[float]) -> dict[str, Any]:
     }
 
 
-def laserscan_msg(  # noqa: PLR0917 (the message's own field order)
+def laserscan_msg(
     stamp_ns: int,
     frame: str,
     angle_min: float,

@@ -1,8 +1,8 @@
 """The picture DESIGN.md draws holds in the code: no import circle between scan2terrain modules
 (function-local and type-checking imports count: a circle hidden in a function is still one),
 a stage never imports a later one (readers -> slam -> octree -> grids -> filters -> geometry ->
-replay -> exporters), the shared modules (types, errors, config, fileio, _numba) import no stage
-and no composer, and every module is in one layer: shared, a stage, or a composer (world/,
+replay -> exporters), the shared modules (types, errors, config, fileio, texts, _numba) import
+no stage and no composer, and every module is in one layer: shared, a stage, or a composer (world/,
 steps.py and checks.py below commands/, below cli/)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
 STAGES = ["readers", "slam", "octree", "grids", "filters", "geometry", "replay", "exporters"]
 COMPOSERS = {"commands", "cli", "steps", "world", "checks", "warmup"}
-SHARED = {"types", "errors", "config", "fileio", "_numba"}
+SHARED = {"types", "errors", "config", "fileio", "texts", "_numba"}
 #: Composers, lowest first: each imports only shared modules, stages and lower composers.
 LAYERS = [{"world"}, {"steps", "checks"}, {"commands"}, {"cli", "warmup", "__main__"}]
 

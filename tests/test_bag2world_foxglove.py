@@ -38,7 +38,7 @@ def run(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str, st
     return code, out, err
 
 
-def same_world(  # noqa: PLR0917
+def same_world(
     capsys: pytest.CaptureFixture[str],
     tmp: Path,
     want_cmd: list[object],

@@ -20,7 +20,7 @@ from scan2terrain import grids
 from scan2terrain.commands import maps
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
-from scan2terrain.world.folder import Result, WorldOutput
+from scan2terrain.world.folder import Result, WrittenWorld
 from tests.conftest import write_map
 from tests.fixtures import IMAGES, MAPS
 from tests.gazebo_harness import probe_world, terrain_height
@@ -56,7 +56,7 @@ def test_filtered_map_export_lines_up_with_the_world(tmp_path: Path, name: str) 
         single = Result(
             out=result.out,
             worlds=[
-                WorldOutput(
+                WrittenWorld(
                     w.placement.__class__(**{**w.placement.__dict__, "offset": (0.0, 0.0)}),
                     w.world,
                     w.models,

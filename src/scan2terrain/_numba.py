@@ -41,7 +41,8 @@ def _numpy_support_without_blas_probe() -> None:
         return
     sys.modules[_PROBED] = None  # type: ignore[assignment]  # `import scipy.linalg` fails now
     try:
-        import numba.np.arraymath  # noqa: F401 - its BLAS probe runs, and finds none
+        # Imported for its side effect, here: its BLAS probe runs, and finds none.
+        import numba.np.arraymath  # noqa: F401, PLC0415
     finally:
         if sys.modules.get(_PROBED, _PROBED) is None:
             del sys.modules[_PROBED]

@@ -58,8 +58,6 @@ def refuse_large_grid(
 def refuse_tiles_grid(tiles: TileSet, cfg: Config, source: Path) -> None:
     """Refuse, before the dense grid is allocated, the grid of tiles that hold no point or
     that :func:`refuse_large_grid` refuses."""
-    from scan2terrain.errors import InputError
-
     if tiles.points == 0:
         raise InputError(source, "no point in the z band: nothing to make a grid of")
     rows, cols = tiles.grid_shape()
@@ -103,7 +101,7 @@ def heightmap_only(cfg: Config, what: str) -> Config:
     """``cfg`` for inputs that are heights, not occupancy (``world.geometry`` auto resolved);
     refuses wall geometries and what no heightmap can be (:func:`heightmap_options`)."""
     no_voxels(cfg, what)
-    cfg = cfg.for_grid("heights")
+    cfg = cfg.for_grid("height")
     heightmap_options(cfg)
     if cfg.world.geometry != "heightmap":
         raise ConfigError(
@@ -126,6 +124,6 @@ def heightmap_options(cfg: Config) -> None:
 def grid_options(cfg: Config) -> None:
     """Before any work, for the commands whose grid comes from voxels or points (octree2world,
     bag2world, cloud2world): refuse what the world they will write cannot be."""
-    grid = "occupancy" if cfg.octree.grid == "occupancy" else "heights"
+    grid = cfg.octree.grid
     if cfg.for_grid(grid).world.geometry == "heightmap":
         heightmap_options(cfg)

@@ -510,9 +510,9 @@ class Config:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
-    def for_grid(self, grid: str, *, scans: bool = False) -> Config:
+    def for_grid(self, grid: GridKind, *, scans: bool = False) -> Config:
         """This config with ``world.geometry: auto`` resolved for a ``grid`` of ``occupancy``
-        or ``heights``: a mesh of walls for occupancy (unless unknown cells have a height of
+        or ``height``: a mesh of walls for occupancy (unless unknown cells have a height of
         their own), a heightmap for heights; and ``world.wall_faces: auto``: hits for a grid
         made from ``scans``, else cells. The effective config then says what was built."""
         w = self.world
@@ -522,6 +522,19 @@ class Config:
         if w.wall_faces == "auto":
             w = dataclasses.replace(w, wall_faces="hits" if scans else "cells")
         return self if w == self.world else dataclasses.replace(self, world=w)
+
+    def for_poses(self, poses: str, *, corrected: bool) -> Config:
+        """This config with ``scans.poses: auto`` resolved to the source the scans were posed
+        from (``poses``: tf, odom, trajectory or fixed; "" for a map, which leaves it), and
+        ``scans.correct: auto`` to what was decided (on: corrected poses kept; else off), so
+        the effective config says how the scans were posed, and a rerun with it poses them
+        the same way."""
+        sc = self.scans
+        if poses and sc.poses == "auto" and poses in POSE_SOURCES:
+            sc = dataclasses.replace(sc, poses=poses)
+        if poses and sc.correct == "auto":
+            sc = dataclasses.replace(sc, correct="on" if corrected else "off")
+        return self if sc == self.scans else dataclasses.replace(self, scans=sc)
 
     def for_insert(self, default: Literal["raycast", "endpoints"]) -> Config:
         """This config with ``scans.insert: auto`` resolved to the command's ``default``

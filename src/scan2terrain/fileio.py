@@ -9,12 +9,18 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from scan2terrain.errors import OutputError
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no locks (every lock below is then a no-op)
+    fcntl = None  # type: ignore[assignment]
 
 #: Prefix of the hidden temporary names beside an output (kept short: NAME_MAX is 255 bytes).
 TMP_PREFIX = ".s2t-"
@@ -40,8 +46,14 @@ def _home() -> Path | None:
         return None
 
 
-def _is_url(path: Path | str) -> bool:
-    return "://" in str(path)
+def is_url(name: Path | str) -> bool:
+    """``scheme://...`` (http, https, s3, file, ...), as opposed to a local path."""
+    return re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(name)) is not None
+
+
+def url_path(name: Path | str) -> Path:
+    """A path, or a URL as a path (its query and fragment dropped), for names and suffixes."""
+    return Path(re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else name)
 
 
 def check_path(target: Path, inputs: Iterable[Path | str] = (), *, what: str = "output") -> Path:
@@ -68,7 +80,7 @@ def check_path(target: Path, inputs: Iterable[Path | str] = (), *, what: str = "
             which = "is" if real == place else "contains"
             raise OutputError(f"{target}: {which} the {name} folder; name a new {what}")
     for source in inputs:
-        if _is_url(source):
+        if is_url(source):
             continue
         src = real_path(Path(source))
         if real == src or real in src.parents:
@@ -131,9 +143,7 @@ def atomic_write(path: Path, data: bytes | bytearray) -> None:
 
 
 def _flock(fd: int) -> None:
-    try:
-        import fcntl
-    except ImportError:  # not POSIX
+    if fcntl is None:
         return
     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
@@ -144,9 +154,7 @@ def _flock(fd: int) -> None:
 def try_lock(folder: Path) -> int | None:
     """An open descriptor holding an exclusive flock on ``folder`` (or a file); None if another
     process holds it (or locks are not available)."""
-    try:
-        import fcntl
-    except ImportError:  # not POSIX
+    if fcntl is None:
         return None
     try:
         fd = os.open(folder, os.O_RDONLY | (os.O_DIRECTORY if folder.is_dir() else 0))
@@ -164,9 +172,7 @@ def try_lock(folder: Path) -> int | None:
 def locked(parent: Path) -> Iterator[None]:
     """A blocking exclusive flock on ``parent`` (a folder), for the sweep and the creation of
     a temporary folder: milliseconds."""
-    try:
-        import fcntl
-    except ImportError:
+    if fcntl is None:
         yield
         return
     fd = os.open(parent, os.O_RDONLY | os.O_DIRECTORY)

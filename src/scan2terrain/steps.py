@@ -26,11 +26,14 @@ from scan2terrain.filters.speckle import remove_speckles
 from scan2terrain.grids import (
     canvas,
     from_rank,
+    projection,
     to_rank,
     to_trinary,
     upsample,
 )
 from scan2terrain.grids.occupancy import RANK_FREE, RANK_OCCUPIED
+from scan2terrain.grids.tiles import TileSet
+from scan2terrain.octree.keys import KEY_OFFSET, in_key_range
 from scan2terrain.types import (
     HeightGrid,
     OccupancyGrid,
@@ -92,10 +95,10 @@ def terrain_layout(
     t = cfg.terrain
     fine, fine_res = upsample(heights.astype(np.float32), resolution, t.upsample)
     grid = HeightGrid(fine, np.ones(fine.shape, dtype=bool), fine_res, origin)
-    return heightmap_or_tiles(grid, cfg, pad_height=pad_height)
+    return terrain_of(grid, cfg, pad_height=pad_height)
 
 
-def heightmap_or_tiles(grid: HeightGrid, cfg: Config, *, pad_height: float) -> Terrain:
+def terrain_of(grid: HeightGrid, cfg: Config, *, pad_height: float) -> Terrain:
     """One heightmap (``terrain.bit_depth``) when ``grid`` (yaw 0) fits ``terrain.max_side``,
     else tiles of that side sharing their border samples."""
     t = cfg.terrain
@@ -139,7 +142,6 @@ def classify(
 
 def fill_holes(heights: HeightGrid, cfg: Config) -> HeightGrid:
     """Unknown cells of a 2.5D grid filled as ``octree.fill`` says (none, nearest, idw)."""
-    from scan2terrain.grids import projection
 
     o = cfg.octree
     if o.fill == "nearest":
@@ -174,7 +176,6 @@ class PointColumns:
     BATCH = 1 << 20
 
     def __init__(self, lattice: Lattice, *, cast: bool) -> None:
-        from scan2terrain.grids.tiles import TileSet
 
         self.tiles = TileSet(lattice)
         self.cast = cast
@@ -206,7 +207,6 @@ class PointColumns:
             self._adding = self._pool.submit(self._add, held)
 
     def _add(self, held: list[NDArray[np.float64]]) -> None:
-        from scan2terrain.octree.keys import KEY_OFFSET, in_key_range
 
         points = held[0] if len(held) == 1 else np.concatenate(held)
         reach = KEY_OFFSET * self.tiles.lattice.resolution * (1 - 1e-6)

@@ -335,7 +335,7 @@ class EarthAnchor:
 
 
 @dataclass(frozen=True)
-class Start:
+class StartPose:
     """Where the robot was when the recording began (map frame), to spawn it there again."""
 
     pose: Pose2D

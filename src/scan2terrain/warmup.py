@@ -28,6 +28,26 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import laspy  # type: ignore[import-untyped]
+import numpy as np
+from numba.core import event
+from numba.core.registry import CPUDispatcher
+
+import scan2terrain._numba  # noqa: F401  (numba readied as the kernels need it)
+from scan2terrain.commands.voxels import new_tree
+from scan2terrain.config import load_config
+from scan2terrain.geometry.outlines import trace
+from scan2terrain.geometry.simplify import simplify
+from scan2terrain.grids.tiles import Lattice, TileSet
+from scan2terrain.octree import _table
+from scan2terrain.octree._kernels import SERIAL
+from scan2terrain.octree.bt import bt_bytes
+from scan2terrain.readers import _ply_kernels
+from scan2terrain.readers.las import iter_las
+from scan2terrain.replay.agreement import agreement
+from scan2terrain.slam.matching import LikelihoodGrid
+from scan2terrain.types import Pose2D
+
 #: Every module holding numba kernels (``cache=True``).
 KERNEL_MODULES = (
     "scan2terrain.octree._table",
@@ -49,9 +69,6 @@ KERNEL_MODULES = (
 def dispatchers() -> list[Any]:
     """The numba dispatchers of :data:`KERNEL_MODULES` and the octree's serial kernel set
     (built from them in octree/_kernels.py); importing them loads numba."""
-    from numba.core.registry import CPUDispatcher
-
-    from scan2terrain.octree._kernels import SERIAL
 
     found = []
     for name in KERNEL_MODULES:
@@ -108,9 +125,6 @@ class CompileWatch:
         self._listener: Any = None
 
     def __enter__(self) -> CompileWatch:
-        from numba.core import event
-
-        import scan2terrain._numba  # noqa: F401  (numba readied as the kernels need it)
 
         watch = self
 
@@ -126,7 +140,6 @@ class CompileWatch:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        from numba.core import event
 
         event.unregister("numba:compile", self._listener)  # type: ignore[no-untyped-call]
         if self._depth:  # left while compiling (an exception)
@@ -159,10 +172,6 @@ def warm(parts: tuple[str, ...] = ()) -> float:
 def _warm_scans() -> None:
     """Ray casting: each kernel set (serial under PARALLEL_MIN_RAYS rays, parallel above), the
     box of bits and the dense store's; voxel extraction; the .bt writer."""
-    import numpy as np
-
-    from scan2terrain.octree import _table
-    from scan2terrain.octree.bt import bt_bytes
 
     rng = np.random.default_rng(0)
     tree = _tree()
@@ -190,7 +199,6 @@ def _warm_points(sizes: tuple[int, ...]) -> None:
     PARALLEL_MIN_RAYS points, the parallel one above; points that fill the sparse store, make
     it grow and promote blocks to the dense store; voxel extraction and queries by key from
     both stores."""
-    import numpy as np
 
     rng = np.random.default_rng(1)
     tree = _tree()
@@ -204,12 +212,6 @@ def _warm_points(sizes: tuple[int, ...]) -> None:
 
 def _warm_grids() -> None:
     """The streamed tiles, outline simplification, LAS scaling."""
-    import numpy as np
-
-    from scan2terrain.geometry.outlines import trace
-    from scan2terrain.geometry.simplify import simplify
-    from scan2terrain.grids.tiles import Lattice, TileSet
-    from scan2terrain.types import Pose2D
 
     rng = np.random.default_rng(2)
     for lattice in (Lattice(0.1, 64), Lattice(0.1, 64, z_min=-1.0, z_max=1.0)):
@@ -227,10 +229,6 @@ def _warm_grids() -> None:
 
 def _warm_correction() -> None:
     """The correlative matcher's branch and bound and the agreement's beam marching."""
-    import numpy as np
-
-    from scan2terrain.replay.agreement import agreement
-    from scan2terrain.slam.matching import LikelihoodGrid
 
     t = np.linspace(0.0, 1.0, 200)
     walls = np.concatenate([np.c_[8 * t, 0 * t], np.c_[0 * t, 5 * t], np.c_[8 * t, 5 + 0 * t]])
@@ -241,8 +239,6 @@ def _warm_correction() -> None:
 
 
 def _tree() -> Any:
-    from scan2terrain.commands.voxels import new_tree
-    from scan2terrain.config import load_config
 
     return new_tree(load_config(overrides={"octree.resolution": 0.1}))
 
@@ -280,11 +276,6 @@ def warm_side_by_side() -> float:
 
 
 def _warm_las() -> None:
-    import laspy  # type: ignore[import-untyped]
-    import numpy as np
-
-    from scan2terrain.readers.las import iter_las
-
     with tempfile.TemporaryDirectory(prefix="scan2terrain-warmup-") as tmp:
         path = Path(tmp) / "warm.las"
         header = laspy.LasHeader(point_format=3, version="1.2")
@@ -298,9 +289,6 @@ def _warm_las() -> None:
 
 def _warm_ply() -> None:
     """The walks over PLY rows of varying length, with the argument types ply.py passes."""
-    import numpy as np
-
-    from scan2terrain.readers import _ply_kernels
 
     data = np.frombuffer(b"1 2 3 1 4\n", np.uint8)
     counts, signed = np.array([0, 0, 0, 1], np.int64), np.array([False, False, False, True])

@@ -7,14 +7,21 @@ Heavy modules (numpy, Pillow, lxml) are imported only once a command runs, so ``
 from __future__ import annotations
 
 import argparse
+import os
 import re
+import signal
 import sys
+import threading
+import traceback
+import warnings
 from typing import Any
 
-from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS
+from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS, load
 from scan2terrain.cli.display import report
 from scan2terrain.cli.parser import build_parser, flags_of, name_flags
 from scan2terrain.config import TOP_LEVEL_KEYS, load_config
+from scan2terrain.errors import InputError, Scan2TerrainError, shown
+from scan2terrain.exporters.output import OutputDir
 
 __all__ = ["COMMAND_DEFAULTS", "build_parser", "main", "report"]
 
@@ -25,7 +32,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
-    import warnings
 
     def show(message: Any, category: Any, *_: Any, **__: Any) -> None:
         print(f"scan2terrain: warning: {message}", file=sys.stderr)
@@ -47,8 +53,6 @@ def main(argv: list[str] | None = None) -> int:
         # Raised for Ctrl-C, and for SIGTERM / SIGHUP by _stop_on_signals: the output folder's
         # writer has removed its hidden .part folder on the way out (only a SIGKILL leaves
         # one, which the next run in that folder removes).
-        import signal
-
         name = exc.args[0] if exc.args and isinstance(exc.args[0], str) else "SIGINT"
         out = getattr(args, "out", None) or getattr(args, "target", None)
         what = f"{out} was not written or changed; " if out is not None else ""
@@ -58,11 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 128 + int(getattr(signal, name, signal.SIGINT))
     except Exception as exc:
-        from scan2terrain.errors import Scan2TerrainError
-
         if args.verbose:
-            import traceback
-
             traceback.print_exc()
         if isinstance(exc, Scan2TerrainError):
             text = name_flags(_one_line(exc), flags_of(parser, args.command))
@@ -83,8 +83,6 @@ def _stop_on_signals() -> dict[int, Any]:
     """Make SIGTERM (``kill``) and SIGHUP (a closed terminal) stop a run as Ctrl-C does, by a
     KeyboardInterrupt naming the signal, so outputs are cleaned up on the way out. Only from
     the main thread (signal handlers can be set nowhere else); returns the handlers replaced."""
-    import signal
-    import threading
 
     if threading.current_thread() is not threading.main_thread():
         return {}
@@ -101,8 +99,6 @@ def _stop_on_signals() -> dict[int, Any]:
 
 
 def _restore_signals(saved: dict[int, Any]) -> None:
-    import signal
-
     for sig, handler in saved.items():
         signal.signal(sig, handler)
 
@@ -111,8 +107,6 @@ def _one_line(exc: BaseException, limit: int = 400) -> str:
     """An error's text on one line (libraries quote whole files or message definitions),
     its problem cut at ``limit`` characters; the file's name is never cut, so how deep the
     input lies does not change what is said of it."""
-    from scan2terrain.errors import InputError
-
     if isinstance(exc, InputError) and exc.path is not None:
         return f"{exc.path}: {_cut(exc.problem, limit)}"
     return _cut(str(exc), limit)
@@ -121,16 +115,12 @@ def _one_line(exc: BaseException, limit: int = 400) -> str:
 def _cut(text: str, limit: int) -> str:
     """One line: a library's line breaks (and their indentation) as one space; any other
     character that is not printable (a name from a damaged file) escaped, not obeyed."""
-    from scan2terrain.errors import shown
-
     text = shown(re.sub(r"[ \t]*[\r\n][ \t\r\n]*", " ", text).replace("\t", " ").strip())
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _drop_stdout() -> None:
     """Point stdout at /dev/null, so the interpreter's flush at exit does not fail again."""
-    import os
-
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
@@ -139,8 +129,6 @@ def _drop_stdout() -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from scan2terrain.checks import refuse_existing
-
     command = COMMANDS[args.command]
     overrides: dict[str, Any] = {
         k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS
@@ -149,12 +137,10 @@ def _run(args: argparse.Namespace) -> int:
     out = getattr(args, "out", None)
     side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
     if out is not None and side_inputs:  # files besides the command's input never go either
-        refuse_existing(out, args.overwrite, tuple(side_inputs))
+        OutputDir.check_target(out, args.overwrite, tuple(side_inputs))
     if command.numba and not args.quiet:
         # Said when numba really compiles (a cache miss), and how long it took, once done.
-        from scan2terrain.warmup import CompileWatch
-
-        with CompileWatch(on_start=_say_compiling) as watch:
+        with load("scan2terrain.warmup:CompileWatch")(on_start=_say_compiling) as watch:
             text = command.run(args, cfg)
         if watch.compiled:
             took = f"{watch.seconds:.0f}" if watch.seconds >= 1 else f"{watch.seconds:.1f}"
@@ -172,9 +158,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _say_compiling() -> None:
     """The compile note, on a line of its own even under a progress bar."""
-    from scan2terrain.warmup import COMPILING
-
-    line = f"scan2terrain: {COMPILING}"
+    line = f"scan2terrain: {load('scan2terrain.warmup:COMPILING')}"
     if "tqdm" in sys.modules:  # a bar may be drawn: tqdm clears it, writes, redraws it
         from tqdm import tqdm
 

@@ -2,13 +2,14 @@
 its work is compiled by numba, the config defaults it sets before the config file and flags).
 
 A run function takes the parsed arguments and the effective config and returns its report (the
-CLI prints it unless --quiet). Each imports its command module only when it runs, so --help
-stays fast.
+CLI prints it unless --quiet). Each loads its command module (``load``) only when it runs: they
+import numpy, numba and the readers, which --help does not need.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -31,6 +32,12 @@ class Command:
     defaults: Mapping[str, Any] = field(default_factory=dict)
 
 
+def load(target: str) -> Any:
+    """``"module:name"``, imported now (as the filter registry loads filters)."""
+    module, name = target.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
 def show_progress(args: argparse.Namespace) -> bool:
     """--progress / --no-progress, else when stderr is a terminal; never with --quiet."""
     show = sys.stderr.isatty() if args.progress is None else args.progress
@@ -38,20 +45,17 @@ def show_progress(args: argparse.Namespace) -> bool:
 
 
 def _map2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.maps import map2world
-
+    map2world = load("scan2terrain.commands.maps:map2world")
     return report(map2world(args.map, args.out, cfg, overwrite=args.overwrite))
 
 
 def _image2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.maps import image2world
-
+    image2world = load("scan2terrain.commands.maps:image2world")
     return report(image2world(args.image, args.out, cfg, overwrite=args.overwrite))
 
 
 def _octree2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.voxels import octree2world
-
+    octree2world = load("scan2terrain.commands.voxels:octree2world")
     with ProgressBar(enabled=show_progress(args)) as bar:
         result = octree2world(
             args.tree, args.out, cfg, overwrite=args.overwrite, progress=bar.update
@@ -60,8 +64,7 @@ def _octree2world(args: argparse.Namespace, cfg: Config) -> str:
 
 
 def _bag2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.scans import bag2world
-
+    bag2world = load("scan2terrain.commands.scans:bag2world")
     show = show_progress(args)
     with ProgressBar(enabled=show) as bar, TaskBar(enabled=show) as tasks:
         result = bag2world(
@@ -76,8 +79,7 @@ def _bag2world(args: argparse.Namespace, cfg: Config) -> str:
 
 
 def _cloud2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.scans import cloud2world
-
+    cloud2world = load("scan2terrain.commands.scans:cloud2world")
     with TaskBar(enabled=show_progress(args)) as tasks:
         result = cloud2world(
             args.clouds, args.out, cfg, overwrite=args.overwrite, stream_progress=tasks.update
@@ -86,26 +88,22 @@ def _cloud2world(args: argparse.Namespace, cfg: Config) -> str:
 
 
 def _convert(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.scans import convert
-
+    convert: Callable[..., str] = load("scan2terrain.commands.scans:convert")
     return convert(args.source, args.target, cfg, overwrite=args.overwrite)
 
 
 def _inspect(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.scans import inspect_bag
-
+    inspect_bag: Callable[..., str] = load("scan2terrain.commands.scans:inspect_bag")
     return inspect_bag(args.bag, cfg)
 
 
 def _dem2world(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.dem import dem2world
-
+    dem2world = load("scan2terrain.commands.dem:dem2world")
     return report(dem2world(args.dem, args.out, cfg, overwrite=args.overwrite))
 
 
 def _fidelity(args: argparse.Namespace, cfg: Config) -> str:
-    from scan2terrain.commands.replay import fidelity_command
-
+    fidelity_command = load("scan2terrain.commands.replay:fidelity_command")
     return report(
         fidelity_command(
             args.world,

@@ -9,6 +9,8 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from scan2terrain.texts import minus
+
 if TYPE_CHECKING:
     from scan2terrain.types import ScanCounts
     from scan2terrain.world.folder import Result
@@ -114,8 +116,6 @@ def spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
 
 def report(result: Result) -> str:
     """How to open what was written, for a human."""
-    from scan2terrain.world.names import minus
-
     out = result.out
     walls = result.geometry != "heightmap"
     rows, cols = result.tiles

@@ -25,6 +25,7 @@ from scan2terrain.config import (
     WALL_FACES,
     Config,
 )
+from scan2terrain.fileio import is_url
 from scan2terrain.filters.registry import FILTERS as FILTER_REGISTRY
 
 
@@ -524,8 +525,6 @@ def scan_options(o: Options, *, bag: bool, insert: bool = True) -> None:
 
 def path_or_url(text: str) -> Path | str:
     """A URL stays a string (Path would fold its '//')."""
-    from scan2terrain.readers.las import is_url
-
     return text if is_url(text) else Path(text)
 
 

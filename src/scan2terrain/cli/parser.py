@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+import scan2terrain
 from scan2terrain.cli.dispatch import COMMANDS
 from scan2terrain.cli.options import (
     Options,
@@ -162,8 +163,6 @@ class _Version(argparse.Action):
         super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
 
     def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
-        import scan2terrain
-
         print(f"{parser.prog} {scan2terrain.__version__}")  # on stdout, as argparse's own
         parser.exit()
 

@@ -21,7 +21,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
+from scan2terrain.readers.messages import POINT_CLOUD2
+from scan2terrain.readers.points import hits_of
 from scan2terrain.readers.poses import matrices_to_quaternions
+from scan2terrain.readers.scans import odometry_only, posed_scans
+from scan2terrain.replay.agreement import agreement
 from scan2terrain.types import PoseCorrection, ScanCounts
 
 if TYPE_CHECKING:
@@ -37,7 +41,6 @@ AGREEMENT_CELL = 0.05
 def decide(cfg: Config, plan: BagPlan) -> tuple[bool, str]:
     """Whether the plan's poses are to be corrected, and why (or why not): ``inspect``'s line
     and the report's."""
-    from scan2terrain.readers.scans import odometry_only
 
     mode = cfg.scans.correct
     if mode == "off":
@@ -64,7 +67,6 @@ def correct_plan(bag: Bag, cfg: Config, plan: BagPlan) -> list[str]:
 
 
 def _topic(bag: Bag, plan: BagPlan) -> str:
-    from scan2terrain.readers.bag import POINT_CLOUD2
 
     counts = bag.count(plan.scan_topics, plan.start_ns, plan.end_ns)
     return max(
@@ -74,9 +76,7 @@ def _topic(bag: Bag, plan: BagPlan) -> str:
 
 
 def _correct(bag: Bag, cfg: Config, plan: BagPlan, why: str) -> list[str]:
-    from scan2terrain.readers.points import hits_of
-    from scan2terrain.readers.scans import posed_scans
-    from scan2terrain.replay.agreement import agreement
+
     from scan2terrain.slam import planar
 
     topic = _topic(bag, plan)

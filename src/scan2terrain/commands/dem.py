@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from lxml import etree
 
 from scan2terrain.checks import heightmap_only, refuse_existing
 from scan2terrain.config import Config
@@ -18,12 +19,13 @@ from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import GZ, Heightmap
 from scan2terrain.exporters.tiles import Terrain, TiledHeightmap
 from scan2terrain.filters.median import median_filter
-from scan2terrain.steps import heightmap_or_tiles
-from scan2terrain.types import (
-    HeightGrid,
-)
+from scan2terrain.grids import canvas as grid_canvas
+from scan2terrain.readers.dem import read_dem
+from scan2terrain.steps import terrain_of
+from scan2terrain.texts import minus
+from scan2terrain.types import HeightGrid
 from scan2terrain.world.folder import Result, write_world_folder
-from scan2terrain.world.names import minus, terrain_name
+from scan2terrain.world.names import terrain_name
 from scan2terrain.world.preview import filtering, grey8, make_preview
 from scan2terrain.world.spawn import spawn_for, terrain_around
 from scan2terrain.world.terrain import terrain_folder
@@ -50,9 +52,6 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     the lowest height (gz-common's own DEM loader also pads with the lowest height). Filters:
     the plain median (``filter.size``) when filtering is on.
     """
-
-    from scan2terrain.grids import canvas as grid_canvas
-    from scan2terrain.readers.dem import read_dem
 
     refuse_existing(out, overwrite, (dem_path,))
     cfg = heightmap_only(cfg, "dem2world")
@@ -96,7 +95,7 @@ def dem2world(dem_path: Path, out: Path, cfg: Config, *, overwrite: bool = False
     z0 = dem.z_min
     top = float(heights[known].max())
     above = np.clip(np.where(known, heights - np.float32(z0), 0), 0, top - z0)
-    hm = heightmap_or_tiles(
+    hm = terrain_of(
         HeightGrid(above.astype(np.float32), np.ones(above.shape, dtype=bool), res, origin),
         cfg,
         pad_height=0.0,
@@ -195,7 +194,6 @@ def _dem_passthrough(
     lowest height, and heights are absolute (pose z 0) when ``size.z`` = max - min of that
     raster. Loaded pixel k is vertex k s, vertices ``size / vertSize`` apart.
     """
-    from lxml import etree
 
     rows, cols = dem.shape
     n = max(_gz_side(cols), _gz_side(rows))

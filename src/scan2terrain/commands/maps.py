@@ -28,6 +28,7 @@ from scan2terrain.grids import (
     axis_align,
     invert_occupancy,
 )
+from scan2terrain.readers import read_grey_image, read_map_yaml
 from scan2terrain.steps import (
     classify,
     filter_grey,
@@ -41,7 +42,7 @@ from scan2terrain.types import (
     HeightGrid,
     OccupancyGrid,
     Pose2D,
-    Start,
+    StartPose,
 )
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 from scan2terrain.world.preview import filtering, grey8, make_preview
@@ -52,7 +53,6 @@ from scan2terrain.world.walls import walls_folder
 
 def map2world(yaml_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
     """A map_server map (YAML + image) to a Gazebo world folder. See the module docstring."""
-    from scan2terrain.readers import read_map_yaml
 
     refuse_existing(out, overwrite, (yaml_path,))
     no_voxels(cfg, "map2world")
@@ -68,7 +68,7 @@ def occupancy_folder(
     source: Path,
     cfg: Config,
     *,
-    start: Start | None = None,
+    start: StartPose | None = None,
     scans: bool = False,
 ) -> WorldFolder:
     """A trinary occupancy grid to a world folder: invert/canvas -> filter -> align -> heights
@@ -120,7 +120,7 @@ def occupancy_folder(
 
 
 def height_folder(
-    grid: HeightGrid, source: Path, cfg: Config, *, start: Start | None = None
+    grid: HeightGrid, source: Path, cfg: Config, *, start: StartPose | None = None
 ) -> WorldFolder:
     """A 2.5D height grid (metres) to a world folder. Unknown cells sit at the lowest known
     height. Filters: the plain median (``filter.size``) when filtering is on, as heights are
@@ -158,7 +158,6 @@ def height_folder(
 
 def image2world(image_path: Path, out: Path, cfg: Config, *, overwrite: bool = False) -> Result:
     """Any image to a Gazebo world folder: luminance is height, white is ``terrain.height``."""
-    from scan2terrain.readers import read_grey_image
 
     cfg = heightmap_only(cfg, "image2world")
     refuse_existing(out, overwrite, (image_path,))

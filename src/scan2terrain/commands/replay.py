@@ -19,11 +19,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scan2terrain.checks import refuse_existing, refuse_unused, skipped_notes
+from scan2terrain.commands.correct import correct_plan
 from scan2terrain.config import Config
 from scan2terrain.errors import FidelityWarning, InputError
+from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
+from scan2terrain.exporters.trajectory import tum_bytes
+from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
+from scan2terrain.readers.points import within_reach
+from scan2terrain.readers.poses import matrices_to_quaternions
+from scan2terrain.readers.scans import plan_bag, posed_scans
+from scan2terrain.readers.world import read_world
 from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.types import Beams, Fidelity, PoseCorrection
-from scan2terrain.world.folder import Result, SimWorld
+from scan2terrain.replay.cast import fidelity
+from scan2terrain.types import Beams, Fidelity, PoseCorrection, ScanCounts
+from scan2terrain.world.folder import Result, SimWorld, WorldFolder, write_world_folder
 
 if TYPE_CHECKING:
     from scan2terrain.readers.world import WorldGeometry
@@ -50,9 +60,6 @@ class Replay:
     raw: PoseCorrection | None = None
 
     def files(self, worlds: Sequence[SimWorld]) -> tuple[dict[str, bytes], list[str]]:
-        from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
-        from scan2terrain.exporters.trajectory import tum_bytes
-        from scan2terrain.readers.poses import matrices_to_quaternions
 
         b = self.beams
         files = {
@@ -146,7 +153,6 @@ def lift_low(beams: Beams, floor: float | None) -> tuple[Beams, int]:
 def world_geometry(world: SimWorld) -> tuple[WorldGeometry, tuple[float, float, float]]:
     """One world's collision geometry, read back from its bytes, and the offset of its frame
     from the map frame."""
-    from scan2terrain.readers.world import read_world
 
     geometry = read_world(
         Path(world.name),
@@ -164,7 +170,6 @@ def replay(
     pose_source: str,
 ) -> Fidelity:
     """The beams cast into one world's triangles (world = map frame - ``offset``)."""
-    from scan2terrain.replay.cast import fidelity
 
     return fidelity(
         geometry.vertices,
@@ -229,11 +234,6 @@ def fidelity_command(
     """Any Gazebo world scored against a recording (a bag, or an OctoMap scan file): the
     world's collision geometry, as the simulator builds it, in the recording's fixed frame;
     writes ``fidelity.yaml``, ``fidelity.png`` and ``trajectory.tum`` to ``out``."""
-    from scan2terrain.checks import refuse_existing
-    from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
-    from scan2terrain.readers.world import read_world
-    from scan2terrain.replay.cast import fidelity
-    from scan2terrain.world.folder import WorldFolder, write_world_folder
 
     refuse_existing(out, overwrite, (world, *recording))
     geometry = read_world(Path(world), simulator=simulator)  # type: ignore[arg-type]
@@ -276,9 +276,7 @@ class Recorded:
 def record(recording: Sequence[Path], cfg: Config) -> Recorded:
     """Every posed scan of a recording (a bag, or an OctoMap scan file) into a recorder, posed
     as bag2world poses them: with ``scans.correct`` applied the same way."""
-    from scan2terrain.checks import refuse_unused, skipped_notes
-    from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
-    from scan2terrain.readers.points import within_reach
+    from scan2terrain.readers.bag import open_bag
 
     recorder = BeamRecorder()
     first = Path(recording[0])
@@ -288,10 +286,6 @@ def record(recording: Sequence[Path], cfg: Config) -> Recorded:
         if recorder.scans == 0:
             raise InputError(first, "no scan in the file")
         return Recorded(recorder, "the scan file's NODE poses", [f"scans: {recorder.scans}"], first)
-    from scan2terrain.commands.correct import correct_plan
-    from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.scans import plan_bag, posed_scans
-    from scan2terrain.types import ScanCounts
 
     with open_bag([Path(r) for r in recording]) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)

@@ -13,6 +13,7 @@ and owns no algorithm.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,16 +23,38 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.checks import grid_options, refuse_existing, refuse_unused, skipped_notes
+from scan2terrain.commands import stream
 from scan2terrain.commands.correct import correct_plan, decide
 from scan2terrain.commands.maps import height_folder, occupancy_folder
 from scan2terrain.commands.replay import scan_replay
+from scan2terrain.commands.stream import cloud_bounds
 from scan2terrain.commands.voxels import Voxels, cast_hits, new_tree, octree_folder, point_columns
-from scan2terrain.config import Config
-from scan2terrain.errors import ConfigError, InputError, about
+from scan2terrain.config import DEFAULT_RESOLUTION, Config, cloud_resolution
+from scan2terrain.errors import ConfigError, InputError, OutputError, about
+from scan2terrain.exporters.pointcloud import FORMATS, cloud_bytes
+from scan2terrain.exporters.trajectory import tum_bytes
+from scan2terrain.fileio import atomic_write, check_file_target, is_url, url_path
+from scan2terrain.filters.outliers import statistical_outliers
+from scan2terrain.grids import to_trinary
+from scan2terrain.octree.colour import VoxelColours
+from scan2terrain.readers.cloudfile import SUFFIXES, merge_clouds, read_cloud
+from scan2terrain.readers.crs import georeferenced, parse_crs
+from scan2terrain.readers.messages import TF_TYPES
 from scan2terrain.readers.points import hits_of, local_origin, start_of
+from scan2terrain.readers.poses import pose6
+from scan2terrain.readers.scans import (
+    height_grid_from_message,
+    is_height_grid,
+    map_message,
+    occupancy_from_message,
+    plan_bag,
+    posed_scans,
+    read_tf,
+    robot_trajectory,
+)
 from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import PointColumns, ScanProgress, StreamProgress
-from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, Start, Transform
+from scan2terrain.types import Cloud, OccupancyGrid, Pose2D, Scan, ScanCounts, StartPose, Transform
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 
 if TYPE_CHECKING:
@@ -50,7 +73,7 @@ class Ingest:
     """What went into the octree, for the report."""
 
     notes: tuple[str, ...]
-    start: Start | None = None  #: the first scan's sensor pose: where the robot started
+    start: StartPose | None = None  #: the first scan's sensor pose: where the robot started
 
 
 def streaming(cfg: Config) -> bool:
@@ -80,23 +103,22 @@ def bag2world(
 ) -> Result:
     """A bag (ROS1, ROS 2 sqlite3/MCAP; several files = one split bag) to a world folder."""
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.scans import plan_bag
 
     refuse_existing(out, overwrite, tuple(bags))
     grid_options(cfg)
     if streaming(cfg):
-        from scan2terrain.commands import stream
-
         with open_bag(list(bags)) as bag:
             planned = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         if planned.scan_topics:  # a map, or a trajectory only, is read as without --stream
             cfg = cfg.for_insert("endpoints")  # the written config says how scans went in
             streamed = stream.stream_bag(bags, cfg, stream_progress)
+            cfg = cfg.for_poses(streamed.poses, corrected=streamed.corrected)
             folder = stream.streamed_folder(streamed, Path(bags[0]), cfg)
             return write_world_folder(folder, out, overwrite=overwrite)
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
         corrected = correct_plan(bag, cfg, plan)
+        cfg = cfg.for_poses(plan.poses, corrected=plan.correction is not None)
         if plan.trajectory_only or plan.map_topic is not None:
             folder = (
                 _trajectory_folder(bag, plan, cfg)
@@ -121,13 +143,6 @@ def bag2world(
 def _map_topic_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
     """A bag's map topic (its last message, or ``scans.map_message``) as map2world or
     dem2world would make it: an OccupancyGrid, or an elevation grid (grid_map)."""
-    from scan2terrain.grids import to_trinary
-    from scan2terrain.readers.scans import (
-        height_grid_from_message,
-        is_height_grid,
-        map_message,
-        occupancy_from_message,
-    )
 
     msg, _ = map_message(bag, plan, cfg.scans.map_message)
     if is_height_grid(msg):  # an elevation grid: terrain, as dem2world makes it
@@ -152,8 +167,6 @@ def _map_topic_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
 def _trajectory_folder(bag: Bag, plan: BagPlan, cfg: Config) -> WorldFolder:
     """A bag with poses and nothing to map: OUT/trajectory.tum (and the effective config), no
     world; the report's first line says so."""
-    from scan2terrain.exporters.trajectory import tum_bytes
-    from scan2terrain.readers.scans import robot_trajectory
 
     track, what = robot_trajectory(bag, cfg.scans, plan)
     span = (track.end_ns - track.start_ns) / 1e9
@@ -181,8 +194,6 @@ def bag_octree(
     """Every posed scan of the plan inserted into a new octree (and its hits into
     ``columns``, the points' column statistics, and its pose and beams into ``recorder``,
     when given)."""
-    from scan2terrain.readers.scans import posed_scans
-    from scan2terrain.types import ScanCounts
 
     tree = new_tree(cfg)
     counts = ScanCounts()
@@ -261,8 +272,7 @@ class EndpointBatch:
 def inspect_bag(bags: Sequence[Path], cfg: Config) -> str:
     """A human report of a bag: topics, types, counts, duration, tf frames, and what bag2world
     would use and why (or why it cannot)."""
-    from scan2terrain.readers.bag import TF_TYPES, open_bag
-    from scan2terrain.readers.scans import plan_bag, read_tf
+    from scan2terrain.readers.bag import open_bag
 
     with open_bag(list(bags)) as bag:
         lines = [
@@ -325,8 +335,6 @@ def read_clouds(
     points = [c.points for c in clouds]
     origin = np.zeros(3)
     if local:
-        from scan2terrain.commands.stream import cloud_bounds
-
         # The bounds the streamed path knows before reading a point (a LAS/LAZ header's, of
         # every class): the same origin, so the same coordinates, on both paths.
         lo, hi, _ = cloud_bounds(files, points)
@@ -339,7 +347,6 @@ def _cloud_files(
 ) -> tuple[list[Cloud], list[str]]:
     """Every file's cloud (of ``scans.las_classes``, without statistical outliers when
     ``scans.outliers`` asks), and notes."""
-    from scan2terrain.readers.cloudfile import read_cloud
 
     sc = cfg.scans
     clouds = [
@@ -348,8 +355,6 @@ def _cloud_files(
     ]
     notes = [f"{c.path.name}: {len(c.points):,} points ({c.format})" for c in clouds]
     if sc.outliers is not None:
-        from scan2terrain.filters.outliers import statistical_outliers
-
         for i, c in enumerate(clouds):
             keep = statistical_outliers(
                 c.points, neighbours=sc.outlier_neighbours, std_ratio=sc.outliers
@@ -379,15 +384,11 @@ def cloud2world(
     refuse_existing(out, overwrite, tuple(files))
     grid_options(cfg)
     cfg = cfg.for_insert("endpoints")
-    from scan2terrain.readers.crs import georeferenced, parse_crs
-    from scan2terrain.readers.las import is_url, url_path
 
     if cfg.scans.crs is not None:  # refused before any point is read
         parse_crs(cfg.scans.crs)
 
     if streaming(cfg):
-        from scan2terrain.commands import stream
-
         chosen: list[str] = []
         if cfg.octree.resolution is None:
             cfg = _cloud_resolution(cfg, *stream.cloud_bounds(files), chosen)
@@ -404,8 +405,6 @@ def cloud2world(
     asked = cfg.scans.local_origin  # before the origin used is recorded
     cfg = georeferenced(cfg, origin, files, notes)
     if cfg.octree.resolution is None:
-        from scan2terrain.commands.stream import cloud_bounds
-
         lo, hi, n = cloud_bounds(files, clouds, offset=origin)
         cfg = _cloud_resolution(cfg, lo, hi, n, notes)
     tree = new_tree(cfg)
@@ -415,8 +414,6 @@ def cloud2world(
     outside: dict[Path, int] = {}
     colours = None
     if any(c is not None for c in rgb):
-        from scan2terrain.octree.colour import VoxelColours
-
         colours = VoxelColours(tree.resolution)
     for path, local, pts_rgb in zip(files, clouds, rgb, strict=True):
         pts = sensor.apply(local) if raycast else local
@@ -461,9 +458,6 @@ def _cloud_resolution(
     """``cfg`` with cloud2world's resolution for ``points`` points within ``lo``..``hi`` (none
     was given);
     the reason in ``notes`` when it is coarser than the default."""
-    import dataclasses
-
-    from scan2terrain.config import DEFAULT_RESOLUTION, cloud_resolution
 
     res, why = cloud_resolution(lo.tolist(), hi.tolist(), points, cfg)
     if res != DEFAULT_RESOLUTION:
@@ -472,7 +466,6 @@ def _cloud_resolution(
 
 
 def _fixed_pose(cfg: Config) -> Transform:
-    from scan2terrain.readers.poses import pose6
 
     return pose6(cfg.scans.pose or [0.0] * 6)
 
@@ -486,11 +479,7 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
     Cloud files keep what the target can hold of their attributes (intensity, classification,
     return numbers, GPS time, colour, ...), LAS layout (point format, scales, offsets) and CRS;
     one line of the report says what it cannot hold."""
-    from scan2terrain.errors import OutputError
-    from scan2terrain.exporters.pointcloud import FORMATS, cloud_bytes
-    from scan2terrain.fileio import atomic_write, check_file_target
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.cloudfile import SUFFIXES, merge_clouds
 
     target = Path(target)
     # Before any work: a target this cannot write, or must not replace, is refused.
@@ -530,8 +519,6 @@ def convert(source: Sequence[Path], target: Path, cfg: Config, *, overwrite: boo
 
 
 def _bag_hits(bag: Bag, cfg: Config) -> tuple[NDArray[np.float64], list[str]]:
-    from scan2terrain.readers.scans import plan_bag, posed_scans
-    from scan2terrain.types import ScanCounts
 
     plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
     if plan.trajectory_only:

@@ -25,6 +25,8 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
+import queue
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -33,16 +35,27 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.checks import refuse_large_grid, refuse_tiles_grid
+from scan2terrain.commands.correct import correct_plan
+from scan2terrain.commands.maps import height_folder, occupancy_folder
+from scan2terrain.commands.replay import scan_replay
 from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import ConfigError, InputError
+from scan2terrain.fileio import is_url, url_path
 from scan2terrain.grids.tiles import Lattice, TileRecords, TileSet
-from scan2terrain.steps import StreamProgress
+from scan2terrain.readers.cloudfile import read_cloud
+from scan2terrain.readers.las import LAS_SUFFIXES, iter_las, las_info, url_suffix
+from scan2terrain.readers.points import hits_of, local_origin, start_of
+from scan2terrain.readers.scans import plan_bag, posed_scans
+from scan2terrain.replay.beams import BeamRecorder
+from scan2terrain.steps import StreamProgress, point_heights, solid_hint
+from scan2terrain.types import ScanCounts
 
 if TYPE_CHECKING:
     from scan2terrain.commands.replay import Replay
     from scan2terrain.readers.scans import BagPlan
     from scan2terrain.replay.beams import BeamRecorder
-    from scan2terrain.types import Start
+    from scan2terrain.types import StartPose
     from scan2terrain.world.folder import WorldFolder
 
 #: A Dask task reads about this many chunks of ``stream.chunk_points``: a range of a big LAS/LAZ
@@ -102,9 +115,11 @@ class Streamed:
 
     tiles: TileSet
     notes: tuple[str, ...]
-    start: Start | None = None  #: a bag's first scan pose, as the octree path finds it
+    start: StartPose | None = None  #: a bag's first scan pose, as the octree path finds it
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: the clouds' local origin
     replay: Replay | None = None  #: a bag's: its recorded beams, replayed in the world
+    poses: str = ""  #: a bag's: where its poses came from (tf, odom, trajectory, fixed)
+    corrected: bool = False  #: a bag's: its poses were corrected (scans.correct)
 
 
 # --- planning ---------------------------------------------------------------------------------
@@ -123,8 +138,6 @@ def cloud_bounds(
     grid: a LAS/LAZ header's, else the points' (``points``, one array per file, when they are
     read already; plus ``offset`` when they are less it, a local origin: the bounds of
     ``points + offset`` exactly, rounding being monotonic, without adding it to every point)."""
-    from scan2terrain.readers.cloudfile import read_cloud
-    from scan2terrain.readers.las import LAS_SUFFIXES, las_info, url_suffix
 
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
@@ -151,10 +164,6 @@ def plan_clouds(
     """Chunks and the job for cloud files. LAS/LAZ headers give counts and bounds without
     reading points; other formats are read once here for their bounds (they are read whole by
     their task too: only LAS/LAZ stream within a file)."""
-    from scan2terrain.checks import refuse_large_grid
-    from scan2terrain.readers.cloudfile import read_cloud
-    from scan2terrain.readers.las import LAS_SUFFIXES, is_url, las_info, url_path, url_suffix
-    from scan2terrain.readers.points import local_origin
 
     st = cfg.stream
     per_task = st.chunk_points * CHUNKS_PER_TASK
@@ -240,7 +249,6 @@ def _recorder(job: Job) -> BeamRecorder | None:
     """A bag's scans are recorded for the replay (the sensor poses and beams)."""
     if job.bag is None:
         return None
-    from scan2terrain.replay.beams import BeamRecorder
 
     return BeamRecorder()
 
@@ -266,8 +274,6 @@ def tasks_of(chunks: Sequence[Chunk], points_per_task: int) -> list[tuple[Chunk,
 
 def _read_ahead(items: Iterator[T]) -> Iterator[T]:
     """``items``, produced on another thread one item ahead; its exceptions re-raised here."""
-    import queue
-    import threading
 
     box: queue.Queue[tuple[bool, object]] = queue.Queue(maxsize=1)
     stop = threading.Event()
@@ -308,8 +314,6 @@ def _chunk_points(
     if isinstance(chunk, BagChunk):
         yield from _bag_points(chunk, job, recorder)
         return
-    from scan2terrain.readers.cloudfile import read_cloud
-    from scan2terrain.readers.las import LAS_SUFFIXES, iter_las, url_suffix
 
     origin = np.array(job.origin)
     if url_suffix(chunk.path) in LAS_SUFFIXES:
@@ -330,10 +334,8 @@ def _chunk_points(
 def _bag_points(
     chunk: BagChunk, job: Job, recorder: BeamRecorder | None
 ) -> Iterator[NDArray[np.float64]]:
+
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.points import hits_of
-    from scan2terrain.readers.scans import posed_scans
-    from scan2terrain.types import ScanCounts
 
     assert job.bag is not None, "a bag chunk needs the bag's plan"
     plan = replace(job.bag.plan, start_ns=chunk.start_ns, end_ns=chunk.end_ns)
@@ -451,12 +453,7 @@ def stream_bag(
 ) -> Streamed:
     """A bag's end points (hits, in the fixed frame) streamed into tiles. The client plans and
     reads tf once; the scans' stamps come from the bag's index, without decoding scans."""
-    from scan2terrain.commands.correct import correct_plan
-    from scan2terrain.commands.replay import scan_replay
     from scan2terrain.readers.bag import open_bag
-    from scan2terrain.readers.points import start_of
-    from scan2terrain.readers.scans import plan_bag, posed_scans
-    from scan2terrain.types import ScanCounts
 
     with open_bag(list(bags)) as bag:
         plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
@@ -478,7 +475,14 @@ def stream_bag(
     notes += corrected
     assert recorder is not None  # a bag job records
     replay = scan_replay(recorder, plan.pose_source, cfg, plan.correction)
-    return Streamed(tiles, tuple(notes), None if first is None else start_of(first), replay=replay)
+    return Streamed(
+        tiles,
+        tuple(notes),
+        None if first is None else start_of(first),
+        replay=replay,
+        poses=plan.poses,
+        corrected=plan.correction is not None,
+    )
 
 
 def streamed_folder(streamed: Streamed, source: Path, cfg: Config) -> WorldFolder:
@@ -486,9 +490,6 @@ def streamed_folder(streamed: Streamed, source: Path, cfg: Config) -> WorldFolde
     unknown) or a 2.5D height grid (``octree.height_stat`` of the points' z, holes filled as
     ``octree.fill`` says), then as every other grid. The tiles are consumed: emptied once the
     grid is made, so their memory is not held while the world is built."""
-    from scan2terrain.checks import refuse_tiles_grid
-    from scan2terrain.commands.maps import height_folder, occupancy_folder
-    from scan2terrain.steps import point_heights, solid_hint
 
     tiles = streamed.tiles
     read = [*streamed.notes, f"points counted: {tiles.points:,}"]

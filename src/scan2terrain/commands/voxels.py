@@ -15,23 +15,31 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.checks import grid_options, refuse_existing, refuse_large_grid
+from scan2terrain.commands.maps import height_folder, occupancy_folder
+from scan2terrain.commands.replay import Replay, scan_replay
+from scan2terrain.commands.stream import lattice_for
 from scan2terrain.config import Config, octree_resolution
 from scan2terrain.errors import InputError, about
-from scan2terrain.steps import PointColumns, fill_holes, point_heights, solid_hint
+from scan2terrain.exporters.pointcloud import points_bytes
+from scan2terrain.grids import projection
+from scan2terrain.grids.occupied import occupied_voxels
+from scan2terrain.grids.projection import leaf_columns
+from scan2terrain.octree.bt import bt_bytes, read_bt
+from scan2terrain.octree.keys import key_to_coord
+from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
+from scan2terrain.readers.points import within_reach
+from scan2terrain.replay.beams import BeamRecorder
+from scan2terrain.steps import PointColumns, ScanProgress, fill_holes, point_heights, solid_hint
 from scan2terrain.types import (
-    Start,
+    ScanCounts,
+    StartPose,
 )
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
+from scan2terrain.world.voxels import voxel_mesh_folder
 
 if TYPE_CHECKING:
     from scan2terrain.octree.colour import VoxelColours
     from scan2terrain.octree.tree import VoxelOctree
-
-
-from scan2terrain.commands.maps import height_folder, occupancy_folder
-from scan2terrain.commands.replay import Replay, scan_replay
-from scan2terrain.replay.beams import BeamRecorder
-from scan2terrain.steps import ScanProgress
 
 
 def octree2world(
@@ -46,8 +54,6 @@ def octree2world(
     world folder through octomap_server's 2D projection or a 2.5D height grid. ``progress``
     (scan files only) is called after each scan with the counts so far and a total of 0
     (unknown: the file is read once)."""
-    from scan2terrain.octree.bt import read_bt
-    from scan2terrain.readers.octomap_scan import is_scan_file
 
     refuse_existing(out, overwrite, (source,))
     grid_options(cfg)
@@ -63,7 +69,6 @@ def octree2world(
             voxels, source=source, cfg=cfg, columns=columns, replay=replay
         ) as folder:
             return write_world_folder(folder, out, overwrite=overwrite)
-    from scan2terrain.grids.projection import leaf_columns
 
     bt = read_bt(source)
     # Pruned leaves (a free 256^3 block is common in octomap_server maps) stay vertical runs.
@@ -96,7 +101,7 @@ def octree_folder(
     *,
     source: Path,
     cfg: Config,
-    start: Start | None = None,
+    start: StartPose | None = None,
     colours: VoxelColours | None = None,
     columns: PointColumns | None = None,
     replay: Replay | None = None,
@@ -116,14 +121,14 @@ def octree_folder(
         )
 
 
-def voxels_folder(
+def voxels_folder(  # noqa: PLR0913 (the octree's arrays and what the world needs of the run)
     keys: NDArray[np.uint16],
     occupied: NDArray[np.bool_],
     resolution: float,
     *,
     source: Path,
     cfg: Config,
-    start: Start | None = None,
+    start: StartPose | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,
     columns: PointColumns | None = None,
@@ -135,17 +140,12 @@ def voxels_folder(
     ``columns``: the column statistics of the points the voxels were made from; a height
     grid's heights are then theirs (the points' z, as the streamed path takes them), not the
     voxel centres (only an OctoMap file, which has no points, needs those)."""
-    from scan2terrain.grids import projection
-    from scan2terrain.grids.occupied import occupied_voxels
 
     extra: dict[str, bytes] = {}
     if len(keys) == 0:
         raise InputError(source, "the octree holds no known voxel")
     o = cfg.octree
     if o.points != "none":
-        from scan2terrain.exporters.pointcloud import points_bytes
-        from scan2terrain.octree.keys import key_to_coord
-
         solid = occupied_voxels(keys, occupied, runs, source, why="--points")
         extra[f"occupied_voxels.{o.points}"] = points_bytes(
             key_to_coord(solid, resolution), f".{o.points}"
@@ -155,8 +155,6 @@ def voxels_folder(
     span = keys[:, :2].max(axis=0).astype(np.int64) - keys[:, :2].min(axis=0) + 1
     refuse_large_grid(source, "voxels", int(span[1]), int(span[0]), resolution=resolution, cfg=cfg)
     if cfg.world.geometry == "voxels":
-        from scan2terrain.world.voxels import voxel_mesh_folder
-
         return voxel_mesh_folder(
             keys, occupied, resolution, source=source, cfg=cfg, start=start, runs=runs,
             colours=colours,
@@ -194,7 +192,6 @@ def point_columns(cfg: Config, *, cast: bool) -> PointColumns | None:
     (``cast``: the points are ray-cast; see :class:`~scan2terrain.steps.PointColumns`)."""
     if cfg.octree.grid != "height" or cfg.world.geometry == "voxels":
         return None
-    from scan2terrain.commands.stream import lattice_for
 
     return PointColumns(lattice_for(cfg), cast=cast)
 
@@ -203,7 +200,6 @@ def cast_hits(
     points: NDArray[np.float64], sensor: NDArray[np.float64], cfg: Config
 ) -> NDArray[np.float64]:
     """A ray-cast scan's hits: its points within ``octree.max_range`` of the sensor."""
-    from scan2terrain.readers.points import within_reach
 
     return within_reach(points, sensor, cfg.octree.max_range)
 
@@ -218,8 +214,6 @@ def build_octree(
     """Ray-cast every scan of an OctoMap text scan file into a new octree (and its hits into
     ``columns``, the points' column statistics, and its pose and beams into ``recorder``,
     when given)."""
-    from scan2terrain.readers.octomap_scan import read_scans
-    from scan2terrain.types import ScanCounts
 
     o = cfg.octree
     tree = new_tree(cfg)
@@ -261,7 +255,6 @@ def octree_file(
     """``{"octree.bt": the .bt bytes}``, made on a second thread while the caller builds the
     world from the same (unchanged) voxels: the .bt kernels release the GIL, so on two cores
     the file costs no time; the bytes are the same. The writer waits for them."""
-    from scan2terrain.octree.bt import bt_bytes
 
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree.bt") as pool:
         yield {

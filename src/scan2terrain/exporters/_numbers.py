@@ -19,13 +19,6 @@ def float_texts(values: NDArray[np.floating]) -> list[str]:
     return out
 
 
-def decimal_text(v: float, places: int) -> str:
-    """``v`` with at most ``places`` decimals and no trailing zeros, as a user would type it
-    (28.95, not 28.950000000000003; ``-0`` is ``0``)."""
-    text = f"{v:.{places}f}".rstrip("0").rstrip(".")
-    return "0" if text in ("", "-0") else text
-
-
 def joined_ints(values: NDArray[np.integer]) -> str:
     """The integers in C order, separated by single spaces (one %-format: C code, about twice
     as fast as joining their ``str``)."""

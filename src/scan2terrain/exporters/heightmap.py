@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from scan2terrain.grids.spawn import ground_under
 from scan2terrain.types import HeightGrid
 
 #: The simulators we place terrain for.
@@ -83,7 +84,6 @@ class Heightmap:
         """The highest ground Gazebo builds from this image under the square of half-side
         ``half`` metres centred on map point (x, y): pixels scaled as Gazebo scales them
         (``v / v_max * z_range`` above ``z_min``), linear between pixel centres (metres)."""
-        from scan2terrain.grids.spawn import ground_under
 
         top = float(self.pixels.max())
         mid = (self.side - 1) / 2

@@ -22,6 +22,7 @@ import struct
 from typing import NamedTuple
 
 import numpy as np
+from lxml import etree
 from numpy.typing import NDArray
 
 from scan2terrain.exporters._numbers import float_texts, joined_ints
@@ -149,7 +150,6 @@ def dae_bytes(
     material (see the module's docstring); they do not read per-vertex colours. Without
     ``face_colours`` the output is one grey material (:data:`WALL_COLOUR`), as it always was.
     """
-    from lxml import etree
 
     ident = re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "mesh"
     if not re.match(r"[A-Za-z_]", ident):

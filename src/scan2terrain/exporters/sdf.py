@@ -32,8 +32,9 @@ import numpy as np
 from lxml import etree
 from numpy.typing import NDArray
 
-from scan2terrain.exporters._numbers import decimal_text
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap
+from scan2terrain.geometry.caps import splitmix64
+from scan2terrain.texts import decimal_text
 from scan2terrain.types import EarthAnchor
 
 SDF_VERSION = {GZ: "1.9", CLASSIC: "1.6"}
@@ -260,7 +261,6 @@ def tiled_world_sdf(
 
 def texture_pngs() -> dict[str, bytes]:
     """Plain 16 x 16 textures for gz-sim terrain, file name -> PNG bytes."""
-    import numpy as np
     from PIL import Image
 
     out = {}
@@ -504,7 +504,6 @@ def gz_polyline_points(
     list of lists of float64 arrays, each shape (N, 2)
         The same structure, moved.
     """
-    from scan2terrain.geometry.caps import splitmix64
 
     rings = [np.asarray(r, dtype=np.float64).reshape(-1, 2) for poly in polygons for r in poly]
     if not rings:

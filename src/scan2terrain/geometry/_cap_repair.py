@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def _twice_areas(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.float64]:
+def twice_areas(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.float64]:
     p0, p1, p2 = xy[tri[:, 0]], xy[tri[:, 1]], xy[tri[:, 2]]
     area2: NDArray[np.float64] = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (
         p1[:, 1] - p0[:, 1]
@@ -25,11 +25,11 @@ def _sliver_mask(xy: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.
     p = xy[tri]
     e = p[:, [1, 2, 0]] - p
     longest = np.einsum("ijk,ijk->ij", e, e).max(axis=1)
-    mask: NDArray[np.bool_] = np.abs(_twice_areas(xy, tri)) <= 1e-9 * longest
+    mask: NDArray[np.bool_] = np.abs(twice_areas(xy, tri)) <= 1e-9 * longest
     return mask
 
 
-def _needs_repair(
+def needs_repair(
     xy: NDArray[np.float64],
     tri: NDArray[np.int64],
     owner: NDArray[np.int64],
@@ -138,7 +138,7 @@ class _Cap:
       that became exactly collinear with their neighbours, so a triangle edge runs straight
       through a point. That edge (and the one of the triangle across it) is split there;
     * what is left (a run of slivers along one line, each the other's neighbour) is cut out
-      with its neighbours and ear-clipped anew with strict ears (:func:`_strict_ears`).
+      with its neighbours and ear-clipped anew with strict ears (:func:`strict_ears`).
 
     Each round of :meth:`repair` is a sweep of flips over every sliver, else the first sliver
     that ear-clips anew, else a sweep of splits over every edge. A speckled map's one big cap
@@ -176,7 +176,7 @@ class _Cap:
         self.into: dict[int, set[int]] = _grouped(v, u)
         #: The slivers among the triangles, kept as triangles change (numpy only shortlists
         #: them: whether one is a sliver is decided in Python floats, as for later triangles).
-        maybe = np.abs(_twice_areas(xy, tri)) <= 1e-6 * np.max(
+        maybe = np.abs(twice_areas(xy, tri)) <= 1e-6 * np.max(
             np.sum((xy[tri[:, [1, 2, 0]]] - xy[tri]) ** 2, axis=2), axis=1, initial=0.0
         )
         self.slivers = {t for t in np.flatnonzero(maybe).tolist() if _flat(self.p, tris[t])}
@@ -534,7 +534,7 @@ class _Cap:
         points = {i for t in region for e in self._edges_of(t) for i in e}
         if len(loop) != len(boundary) or points != set(loop) or len(loop) - 2 != len(region):
             return False
-        new = _strict_ears(self.p, loop)
+        new = strict_ears(self.p, loop)
         if new is None:
             return False
         changes = tuple(zip(sorted(region), new, strict=True))
@@ -569,7 +569,7 @@ class _Cap:
         done = self.array()
         zeros = np.zeros(len(done), dtype=np.int64)
         ring_owner = np.zeros(len(ring_edges), dtype=np.int64)
-        if _needs_repair(
+        if needs_repair(
             self.xy, done, zeros, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=1
         )[0]:
             raise ValueError(
@@ -579,7 +579,7 @@ class _Cap:
             )
 
 
-def _strict_ears(p: dict[int, tuple[float, float]], loop: list[int]) -> list[Tri] | None:
+def strict_ears(p: dict[int, tuple[float, float]], loop: list[int]) -> list[Tri] | None:
     """Ear clipping of a small counter-clockwise loop of points, clipping only ears with area
     that hold no other point of the loop, not even on their edges (so no triangle edge runs
     through a point: collinear points are handled). None if it gets stuck."""

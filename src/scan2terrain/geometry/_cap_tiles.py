@@ -7,7 +7,7 @@ can mend. So a polygon with many holes (or whose earcut output failed its checks
 axis-parallel lines into tiles of about :data:`TILE_POINTS` points, each tile's pieces are
 triangulated as ordinary caps (earcut, checked and repaired), and the points the cuts made
 are taken out again: each one's triangles are replaced by a strict ear clipping of the loop
-around it (:func:`_strict_ears`), so the cap uses the outline's own points only and its
+around it (:func:`strict_ears`), so the cap uses the outline's own points only and its
 boundary edges are exactly the outline edges, as for any other cap.
 
 The cut lines lie between the distinct coordinates of the points (never through one, never
@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.geometry._cap_repair import _strict_ears
+from scan2terrain.geometry._cap_repair import strict_ears
 
 #: Polygons with more holes than this are triangulated tile by tile.
 MANY_HOLES = 64
@@ -338,7 +338,7 @@ def _take_out(
             for v in loop:
                 if v not in p:
                     p[v] = (float(pts[v, 0]), float(pts[v, 1]))
-            new = _strict_ears(p, loop)
+            new = strict_ears(p, loop)
             if new is None or len(new) != len(loop) - 2:
                 raise ValueError(
                     f"polygon {polygon} cannot be triangulated along its own edges (no ear"

@@ -1,5 +1,4 @@
 # numba kernels take their arrays and scalars positionally (as octree/_kernels.py does).
-# ruff: noqa: PLR0917
 """Compiled loops of outline simplification (numba), imported only by ``simplify.py``.
 
 Coordinates are in half cells of the grid (``2 * grid units``), so every outline point (cell

@@ -14,7 +14,7 @@ from scan2terrain.geometry._voxel_lattice import _Lattice
 
 
 @dataclass
-class _Diagonals:
+class Diagonals:
     """Unit lattice segments where two occupied voxels touch only along that edge (the other two
     voxels around it empty): each gets one midpoint per voxel, so the two solids' faces use
     different edges there. Coordinates doubled (the midpoint is odd along its line)."""
@@ -24,7 +24,7 @@ class _Diagonals:
     xyz: NDArray[np.float64]  #: (D, 3) position, lattice units, hair move included
 
 
-def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
+def _diagonals(grid: _Lattice, hair: float) -> Diagonals:
     lines, along, xyz = [], [], []
     vox = grid.vox
     for t in range(3):
@@ -53,12 +53,12 @@ def _diagonals(grid: _Lattice, hair: float) -> _Diagonals:
                 point[:, b] = line_b
                 xyz.append(point + toward / np.sqrt(0.5) * hair)
     if not lines:  # pragma: no cover - the loops always run
-        return _Diagonals(np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
-    return _Diagonals(np.concatenate(lines), np.concatenate(along), np.concatenate(xyz))
+        return Diagonals(np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+    return Diagonals(np.concatenate(lines), np.concatenate(along), np.concatenate(xyz))
 
 
 @lru_cache(maxsize=1)
-def _sheet_tables() -> tuple[NDArray[np.int8], NDArray[np.int8], NDArray[np.float64]]:
+def sheet_tables() -> tuple[NDArray[np.int8], NDArray[np.int8], NDArray[np.float64]]:
     """For each of the 256 occupancy patterns of the 8 voxels around a lattice vertex (bit
     ``x + 2y + 4z`` of voxel ``(x, y, z)``, 0 or 1 per axis, the vertex at their shared corner):
     the sheet of each surface face, indexed [pattern, occupied voxel, empty voxel]; the number of

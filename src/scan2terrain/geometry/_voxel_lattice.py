@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def _unique_rows(
+def unique_rows(
     table: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """``np.unique(table, axis=0, return_index=True, return_inverse=True)`` for non-negative
@@ -23,7 +23,7 @@ def _unique_rows(
     return table[first], first, inverse.reshape(-1)
 
 
-def _lex_order(keys: tuple[NDArray[np.int64], ...]) -> NDArray[np.intp]:
+def lex_order(keys: tuple[NDArray[np.int64], ...]) -> NDArray[np.intp]:
     """``np.lexsort(keys)`` (the last key first) for int64 keys whose rows are unique: one
     argsort of the keys packed into one int64 when they fit (3-5x faster)."""
     shifted = [k - k.min() if len(k) else k for k in keys]
@@ -44,7 +44,7 @@ DENSE_MAX = 1 << 27
 DENSE_UNIQUE_MAX = 1 << 24
 
 
-class _CodeSet:
+class CodeSet:
     """A set of non-negative int64 codes below ``size``: a dense bitmap when ``size`` is at most
     ``DENSE_MAX`` (a lookup 5-10x a binary search), else the sorted codes."""
 
@@ -79,7 +79,7 @@ class _Lattice:
         self.codes = codes[self.order]
         self.vox = vox[self.order]
         # A 16 m chunk of 5 cm voxels: 322^3 bytes, 33 MB.
-        self.set = _CodeSet(self.codes, int(np.prod(dims.astype(np.float64))), is_sorted=True)
+        self.set = CodeSet(self.codes, int(np.prod(dims.astype(np.float64))), is_sorted=True)
         self.strides = np.array([dims[1] * dims[2], dims[2], 1], np.int64)
 
     def encode(self, p: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -56,7 +56,7 @@ def _group_starts(group: NDArray[np.int64]) -> NDArray[np.int64]:
     return first
 
 
-def spine_triangles(  # noqa: PLR0917 - the polygons' arrays, as voxel_mesh holds them
+def spine_triangles(
     polys: NDArray[np.int64],
     size: NDArray[np.int64],
     uv2: NDArray[np.int64],

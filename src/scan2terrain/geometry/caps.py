@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.geometry._cap_repair import _Cap, _needs_repair, _twice_areas
+from scan2terrain.geometry._cap_repair import _Cap, needs_repair, twice_areas
 from scan2terrain.geometry._cap_tiles import MANY_HOLES, tiled_cap
-from scan2terrain.geometry.contacts import _angles, _SharedPoints
+from scan2terrain.geometry.contacts import SharedPoints, angles
 from scan2terrain.geometry.outlines import ring_area2
 
 
@@ -17,10 +17,10 @@ def _caps(
     xy: NDArray[np.float64],
     start: NDArray[np.int64],
     owner: NDArray[np.int64],
-    shared: _SharedPoints,
+    shared: SharedPoints,
 ) -> NDArray[np.int64]:
     """Counter-clockwise triangles (vertex indices) covering every polygon, whose boundary
-    edges are exactly the outline edges (with the sector vertices of :class:`_SharedPoints`):
+    edges are exactly the outline edges (with the sector vertices of :class:`SharedPoints`):
     a fan for convex polygons without holes, earcut (then repaired, see :class:`_Cap`) for
     the others, tile by tile (:func:`tiled_cap`) for those with many holes or whose earcut
     output is beyond repair."""
@@ -28,11 +28,11 @@ def _caps(
     return tri
 
 
-def _triangulate(
+def _triangulate(  # noqa: PLR0915 (one triangulation, its repair steps in order)
     xy: NDArray[np.float64],
     start: NDArray[np.int64],
     owner: NDArray[np.int64],
-    shared: _SharedPoints,
+    shared: SharedPoints,
     *,
     tiles: bool,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
@@ -87,7 +87,7 @@ def _triangulate(
     owner_of = poly_of_vertex[tri[:, 0]]
     # Earcut winds all triangles of a polygon the same way: turn them all where that is
     # clockwise (decided on their total, which rounding cannot flip, unlike a sliver's).
-    clockwise = np.bincount(owner_of, _twice_areas(xy, tri), minlength=n_poly) < 0
+    clockwise = np.bincount(owner_of, twice_areas(xy, tri), minlength=n_poly) < 0
     tri[clockwise[owner_of]] = tri[clockwise[owner_of]][:, ::-1]
     # Repairs work on points (coincident vertices as one); a triangle between two copies of
     # one point has no area and no place in the cap.
@@ -97,7 +97,7 @@ def _triangulate(
     is_ear = ~(fan | many)[poly_of_vertex]
     ring_edges = np.stack([place[is_ear], place[nxt[is_ear]]], axis=1)
     ring_owner = poly_of_vertex[is_ear]
-    broken = _needs_repair(
+    broken = needs_repair(
         xy, tri, owner_of, ring_edges=ring_edges, ring_owner=ring_owner, n_poly=n_poly
     )
     failed = np.zeros(n_poly, dtype=bool)
@@ -141,7 +141,7 @@ def _triangulate(
             pnxt[pstart[1:] - 1] = pstart[:-1]
             pprv = np.empty(len(pxy), dtype=np.int64)
             pprv[pnxt] = np.arange(len(pxy))
-            return _triangulate(pxy, pstart, powner, _SharedPoints(pxy, pnxt, pprv), tiles=False)
+            return _triangulate(pxy, pstart, powner, SharedPoints(pxy, pnxt, pprv), tiles=False)
 
         for k in np.flatnonzero(many | failed).tolist():
             rings = [
@@ -169,7 +169,7 @@ def _bad_area(
 ) -> NDArray[np.bool_]:
     """Per polygon: whether its triangles do not add up to exactly its area (twice ``want``),
     or one is turned over."""
-    area2 = _twice_areas(xy, tri)
+    area2 = twice_areas(xy, tri)
     got = np.bincount(polygon, np.abs(area2), minlength=len(want))
     bad: NDArray[np.bool_] = ~np.isclose(got, want, rtol=1e-9, atol=1e-12) | (
         np.bincount(polygon, area2 < 0, minlength=len(want)) > 0
@@ -242,7 +242,7 @@ def splitmix64(x: NDArray[np.uint64]) -> NDArray[np.uint64]:
 
 
 def _sector_corners(
-    xy: NDArray[np.float64], tri: NDArray[np.int64], shared: _SharedPoints
+    xy: NDArray[np.float64], tri: NDArray[np.int64], shared: SharedPoints
 ) -> NDArray[np.int64]:
     """Triangle corners at shared points renamed to the vertex of the sector they lie in."""
     t, c = np.nonzero(shared.is_shared[tri])
@@ -251,5 +251,5 @@ def _sector_corners(
     tri = tri.copy()
     v = tri[t, c]
     mid = 0.5 * (xy[tri[t, (c + 1) % 3]] + xy[tri[t, (c + 2) % 3]])
-    tri[t, c] = shared.sector_at(v, _angles(mid - xy[v]))
+    tri[t, c] = shared.sector_at(v, angles(mid - xy[v]))
     return tri

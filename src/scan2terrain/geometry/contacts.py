@@ -20,7 +20,7 @@ SPLIT = 0.01
 SPLIT_MAX = 1e-3
 
 
-class _SharedPoints:
+class SharedPoints:
     """Ring vertices at points that more than one ring vertex occupies, and their sectors.
 
     At such a point every vertex brings an incoming ray (towards its previous vertex) and an
@@ -43,8 +43,8 @@ class _SharedPoints:
         self.is_shared = np.bincount(group)[group] > 1
         m = np.nonzero(self.is_shared)[0]
         self.members = m
-        self.angle_in = _angles(xy[prv[m]] - xy[m])
-        self.angle_out = _angles(xy[nxt[m]] - xy[m])
+        self.angle_in = angles(xy[prv[m]] - xy[m])
+        self.angle_out = angles(xy[nxt[m]] - xy[m])
         # Members sorted by point, and where each member's point starts/ends in that order.
         self.by_point = m[np.argsort(group[m], kind="stable")]
         g = group[self.by_point]
@@ -102,6 +102,6 @@ class _SharedPoints:
         return move
 
 
-def _angles(d: NDArray[np.float64]) -> NDArray[np.float64]:
+def angles(d: NDArray[np.float64]) -> NDArray[np.float64]:
     angle: NDArray[np.float64] = np.arctan2(d[:, 1], d[:, 0])
     return angle

@@ -39,8 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.geometry.caps import _caps
-from scan2terrain.geometry.contacts import _SharedPoints
-from scan2terrain.geometry.outlines import Polygon, _flatten
+from scan2terrain.geometry.contacts import SharedPoints
+from scan2terrain.geometry.outlines import Polygon, flatten
 
 __all__ = ["Mesh", "boxes_mesh", "extrude", "is_watertight"]
 
@@ -112,7 +112,7 @@ def extrude(polygons: list[Polygon], height: float, base: float = 0.0) -> Mesh:
         raise ValueError(f"base must be a finite number of metres, got {base}")
     if not polygons:
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-    rings = _flatten(polygons)
+    rings = flatten(polygons)
     xy = rings.xy
     n = len(xy)
     vertices = np.empty((2 * n, 3))
@@ -123,7 +123,7 @@ def extrude(polygons: list[Polygon], height: float, base: float = 0.0) -> Mesh:
     nxt = rings.next_vertex()
     prv = np.empty(n, dtype=np.int64)
     prv[nxt] = np.arange(n, dtype=np.int64)
-    shared = _SharedPoints(xy, nxt, prv)
+    shared = SharedPoints(xy, nxt, prv)
     # Edge k runs from vertex k to nxt[k]; at a shared point it starts at its sector's vertex.
     a = np.arange(n, dtype=np.int64)
     sector = shared.sector_of_edges()

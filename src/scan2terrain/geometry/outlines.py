@@ -44,7 +44,7 @@ __all__ = ["Polygon", "rasterize", "ring_area2", "trace"]
 
 # Distance, in half cells, from a cell corner to the chamfer joining the cell-edge midpoints
 # half a cell away on either side; from this tolerance up, chamfers replace corners.
-_CHAMFER = math.sqrt(0.5)
+CHAMFER = math.sqrt(0.5)
 
 
 # Directions, counter-clockwise: +x, +y, -x, -y.
@@ -106,7 +106,7 @@ class _Rings:
         return nxt
 
 
-def _flatten(polygons: list[Polygon]) -> _Rings:
+def flatten(polygons: list[Polygon]) -> _Rings:
     rings: list[NDArray[np.float64]] = []
     owner: list[int] = []
     hole: list[bool] = []
@@ -131,7 +131,7 @@ def _flatten(polygons: list[Polygon]) -> _Rings:
     )
 
 
-def _unflatten(rings: _Rings, keep: NDArray[np.bool_] | None = None) -> list[Polygon]:
+def unflatten(rings: _Rings, keep: NDArray[np.bool_] | None = None) -> list[Polygon]:
     """Polygons from flat rings, in owner order; ``keep`` selects rings."""
     out: list[Polygon] = []
     current: list[NDArray[np.float64]] = []
@@ -181,7 +181,7 @@ def trace(occupied: NDArray[np.bool_], resolution: float, origin: Pose2D) -> lis
     occ = np.asarray(occupied)
     if occ.ndim != 2:
         raise ValueError(f"occupied must be a 2D array, got shape {occ.shape}")
-    _check_resolution(resolution)
+    check_resolution(resolution)
     rings = _trace_lattice(occ.astype(bool, copy=False))
     if rings.count == 0:
         return []
@@ -189,10 +189,10 @@ def trace(occupied: NDArray[np.bool_], resolution: float, origin: Pose2D) -> lis
     v = rings.xy[:, 1] * resolution
     x, y = origin.transform(u, v)
     xy = np.stack([x, y], axis=1)
-    return _unflatten(_Rings(xy, rings.start, rings.owner, rings.is_hole))
+    return unflatten(_Rings(xy, rings.start, rings.owner, rings.is_hole))
 
 
-def _check_resolution(resolution: float) -> None:
+def check_resolution(resolution: float) -> None:
     if not (resolution > 0 and math.isfinite(resolution)):
         raise ValueError(f"resolution must be a positive number, got {resolution}")
 
@@ -413,12 +413,12 @@ def rasterize(
         on the boundary between two touching polygons counts once. Outlines from
         :func:`trace` and :func:`simplify` never pass through a centre.
     """
-    _check_resolution(resolution)
+    check_resolution(resolution)
     h, w = int(shape[0]), int(shape[1])
     out = np.zeros((h, w), dtype=bool)
     if not polygons or h == 0 or w == 0:
         return out
-    rings = _flatten(polygons)
+    rings = flatten(polygons)
     # Map frame -> grid units (x along columns, y along rows).
     c, s = math.cos(origin.yaw), math.sin(origin.yaw)
     dx = rings.xy[:, 0] - origin.x

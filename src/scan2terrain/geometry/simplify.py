@@ -33,13 +33,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.geometry.outlines import (
-    _CHAMFER,
+    CHAMFER,
     Polygon,
-    _check_resolution,
-    _flatten,
     _Rings,
-    _unflatten,
+    check_resolution,
+    flatten,
     ring_area2,
+    unflatten,
 )
 from scan2terrain.types import Pose2D
 
@@ -82,14 +82,15 @@ def simplify(
         If ``tolerance_m`` is negative or not finite, or a vertex is not a cell corner or a
         cell-edge midpoint of that grid, or the outlines cross each other.
     """
-    if not (tolerance_m >= 0 and math.isfinite(tolerance_m)):
-        raise ValueError(f"tolerance_m must be a finite number >= 0, got {tolerance_m}")
-    _check_resolution(resolution)
-    if not polygons:
-        return []
     from scan2terrain.geometry import _outline_kernels as kern
 
-    rings = _flatten(polygons)
+    if not (tolerance_m >= 0 and math.isfinite(tolerance_m)):
+        raise ValueError(f"tolerance_m must be a finite number >= 0, got {tolerance_m}")
+    check_resolution(resolution)
+    if not polygons:
+        return []
+
+    rings = flatten(polygons)
     hx, hy = _to_half_cells(rings.xy, resolution, origin)
     tol = 2.0 * tolerance_m / resolution  # half cells
     cand = _candidates(hx, hy, rings.start)
@@ -99,7 +100,7 @@ def simplify(
     keep = np.zeros(len(cand.x), dtype=bool)
     complete = kern.simplify_rings(cand.x, cand.y, cand.sel, cand.start, keep, tol)
     sel = cand.sel
-    if tol >= _CHAMFER:
+    if tol >= CHAMFER:
         keep_c = np.zeros(len(cand.x), dtype=bool)
         complete_c = kern.simplify_rings(cand.x, cand.y, cand.sel_c, cand.start, keep_c, tol)
         n_rings = len(cand.start) - 1
@@ -306,4 +307,4 @@ def _rings_out(
     alive &= ext_alive[rings.owner]
     x, y = origin.transform(hx * (0.5 * resolution), hy * (0.5 * resolution))
     flat = _Rings(np.stack([x, y], axis=1), start, rings.owner, rings.is_hole)
-    return _unflatten(flat, alive)
+    return unflatten(flat, alive)

@@ -23,7 +23,7 @@ The steps, each vectorised over a chunk's voxels (no Python loop per voxel or pe
    triangle over).
 5. 2-manifold where voxels touch only along an edge or at a corner: a lattice vertex gets one
    copy per *sheet* of surface around it, from the occupancy of the 8 voxels around it
-   (:func:`_sheet_tables`: the surface faces around each of its 6 half-edges are paired, those of
+   (:func:`sheet_tables`: the surface faces around each of its 6 half-edges are paired, those of
    the same voxel together when 4 meet, and the sheets are the cycles that pairing makes). A
    vertex with more than one sheet moves each copy by ``SPLIT`` of a voxel (at most
    ``SPLIT_MAX`` m) toward its sheet's voxels and away from its empty ones: solids touching at an
@@ -44,11 +44,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.geometry._voxel_contacts import (
-    _Diagonals,
+    Diagonals,
     _diagonals,
-    _sheet_tables,
+    sheet_tables,
 )
-from scan2terrain.geometry._voxel_lattice import _CodeSet, _Lattice, _lex_order, _unique_rows
+from scan2terrain.geometry._voxel_lattice import CodeSet, _Lattice, lex_order, unique_rows
 from scan2terrain.geometry._voxel_spine import SPINE_RATIO, spine_triangles
 from scan2terrain.geometry.mesh import Mesh
 
@@ -188,7 +188,7 @@ def _chunks(
     chunk3 -= lo
     dims = chunk3.max(axis=0) + 1
     if float(np.prod(dims.astype(np.float64))) > DENSE_CHUNKS_MAX:
-        keys, _, chunk_of = _unique_rows(chunk3)
+        keys, _, chunk_of = unique_rows(chunk3)
         return keys + lo, chunk_of
     code = (chunk3[:, 0] * dims[1] + chunk3[:, 1]) * dims[2] + chunk3[:, 2]
     present = np.flatnonzero(np.bincount(code, minlength=int(np.prod(dims))))
@@ -198,7 +198,7 @@ def _chunks(
     return keys.astype(np.int64) + lo, dense_id[code]
 
 
-def _mesh_chunk(  # noqa: PLR0917 - one chunk's arrays and the mesh's frame, as mesh_voxels has them
+def _mesh_chunk(
     k: NDArray[np.integer],
     lab: NDArray[np.int64],
     index: tuple[int, int, int],
@@ -248,7 +248,7 @@ def _exposed_faces(grid: _Lattice, labels: NDArray[np.int64]) -> _Faces:
     rows = np.arange(len(vox))
     layer = vox[rows, axis] + (sign > 0)
     label = labels[which]
-    _, _, group = _unique_rows(np.stack([direction, layer, label - label.min()], axis=1))
+    _, _, group = unique_rows(np.stack([direction, layer, label - label.min()], axis=1))
     return _Faces(group, direction, layer, vox[rows, ua], vox[rows, va], label)
 
 
@@ -280,7 +280,7 @@ def _rectangles(f: _Faces) -> _Rects:
     u1 = np.concatenate([along_u[3][keep_u], along_v[5][keep_v]])
     v0 = np.concatenate([along_u[4][keep_u], along_v[2][keep_v]])
     v1 = np.concatenate([along_u[5][keep_u], along_v[3][keep_v]])
-    o = _lex_order((u0, v0, g))  # a deterministic order
+    o = lex_order((u0, v0, g))  # a deterministic order
     f0 = first[o]
     return _Rects(g[o], f.direction[f0], f.layer[f0], f.label[f0], u0[o], u1[o], v0[o], v1[o])
 
@@ -290,14 +290,14 @@ def _runs_merged(
 ) -> tuple[NDArray[np.int64], ...]:
     """Runs along x in each (group, y) row, then runs of equal [x0, x1) in consecutive rows
     merged: (group, a face of it, x0, x1, y0, y1) per rectangle."""
-    order = _lex_order((x, y, group))
+    order = lex_order((x, y, group))
     g, xs, ys = group[order], x[order], y[order]
     new_run = np.ones(len(g), bool)
     new_run[1:] = (g[1:] != g[:-1]) | (ys[1:] != ys[:-1]) | (xs[1:] != xs[:-1] + 1)
     start = np.flatnonzero(new_run)
     end = np.append(start[1:], len(g))
     rg, ry, rx0, rx1, first = g[start], ys[start], xs[start], xs[end - 1] + 1, order[start]
-    o = _lex_order((ry, rx1, rx0, rg))
+    o = lex_order((ry, rx1, rx0, rg))
     rg, ry, rx0, rx1, first = rg[o], ry[o], rx0[o], rx1[o], first[o]
     new_rect = np.ones(len(rg), bool)
     new_rect[1:] = (
@@ -377,7 +377,7 @@ def _edge_tables() -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int
 _EDGE_ALONG, _EDGE_QUADRANT, _EDGE_BLOCK = _edge_tables()
 
 
-def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
+def _polygons(r: _Rects, grid: _Lattice, diag: Diagonals) -> _Polygons:
     n = len(r.u0)
     rep = np.repeat
     # Corners counter-clockwise in (u, v): (u0,v0) (u1,v0) (u1,v1) (u0,v1); edge e runs from
@@ -409,7 +409,7 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     d_max = int(grid.dims.max())
     line_id = (ea * d_max + ef[k, oa]) * d_max + ef[k, ob]
     mid_line = (diag.line[:, 0] * d_max + diag.line[:, 1] // 2) * d_max + diag.line[:, 2] // 2
-    ask = np.flatnonzero(_CodeSet(mid_line, 3 * d_max * d_max).contains(line_id))
+    ask = np.flatnonzero(CodeSet(mid_line, 3 * d_max * d_max).contains(line_id))
     m_first = np.zeros(len(ea), np.int64)
     m_count = np.zeros(len(ea), np.int64)
     m_first[ask], m_count[ask], m_order = _between(
@@ -423,7 +423,7 @@ def _polygons(r: _Rects, grid: _Lattice, diag: _Diagonals) -> _Polygons:
     ins_mid = np.concatenate([np.full(len(c_edge), -1, np.int64), m_at])
     ascending = et[k, ea] > ef[k, ea]
     key = np.where(ascending[ins_edge], ins_along, -ins_along)
-    o = _lex_order((key, ins_edge))
+    o = lex_order((key, ins_edge))
     ins_edge, ins_along, ins_mid = ins_edge[o], ins_along[o], ins_mid[o]
     inserted = count.reshape(n, 4)
     size = 4 + inserted.sum(axis=1)
@@ -493,7 +493,7 @@ def _corners_inside(
     strides = grid.strides
     size = 3 * int(np.prod(grid.dims.astype(np.float64)))
     marks = np.concatenate([grid.encode(ef) * 3 + ea, grid.encode(et) * 3 + ea])
-    marked = _CodeSet(marks, size)
+    marked = CodeSet(marks, size)
     rows = np.arange(len(ea))
     lo = np.minimum(ef[rows, ea], et[rows, ea])
     inside = np.maximum(ef[rows, ea], et[rows, ea]) - lo - 1
@@ -512,7 +512,7 @@ def _line_key(
     return key
 
 
-def _between(  # noqa: PLR0917 - the query's arrays, in the order the docstring names them
+def _between(
     key: NDArray[np.int64],
     along: NDArray[np.int64],
     q_key: NDArray[np.int64],
@@ -527,7 +527,7 @@ def _between(  # noqa: PLR0917 - the query's arrays, in the order the docstring 
         p_code = key * w + along
         q_ids = q_key
     else:  # pragma: no cover - lattices wider than OctoMap's 2^16 keys a side
-        _, _, ids = _unique_rows(np.concatenate([key, q_key])[:, None])
+        _, _, ids = unique_rows(np.concatenate([key, q_key])[:, None])
         p_code = ids[: len(key)] * w + along
         q_ids = ids[len(key) :]
     order = np.argsort(p_code, kind="stable")
@@ -551,7 +551,7 @@ _NORMAL_STEP = np.array([sign * (1 << axis) for axis, sign in _DIRS], np.int64)
 
 
 def _in_plane2(
-    p: _Polygons, pts: NDArray[np.int64], polys: NDArray[np.int64], diag: _Diagonals
+    p: _Polygons, pts: NDArray[np.int64], polys: NDArray[np.int64], diag: Diagonals
 ) -> NDArray[np.int64]:
     """The in-plane (u, v) of the points ``pts`` of the polygons ``polys`` (in that order),
     doubled, where they lie before any move: lattice points as they are, midpoints from their
@@ -570,10 +570,10 @@ def _in_plane2(
 
 
 def _triangles(
-    p: _Polygons, grid: _Lattice, diag: _Diagonals, hair: float
+    p: _Polygons, grid: _Lattice, diag: Diagonals, hair: float
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """The chunk's vertices (lattice units, shifted), triangles and each triangle's label."""
-    sheet_of, n_sheets, direction = _sheet_tables()
+    sheet_of, n_sheets, direction = sheet_tables()
     n_poly = len(p.size)
     lattice = p.midpoint < 0
     # Lattice points: one vertex per (point, sheet), the sheet from the 8 voxels around.

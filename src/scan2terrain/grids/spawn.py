@@ -56,7 +56,7 @@ class Around:
     height: float
 
 
-def find_spawn(
+def find_spawn(  # noqa: PLR0913 (the height grid's layers, each an argument)
     heights: NDArray[np.floating],
     resolution: float,
     origin: Pose2D,

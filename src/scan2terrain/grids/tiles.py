@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.grids import _tile_kernels as K
 from scan2terrain.grids.projection import STATS, ColumnStats
 from scan2terrain.octree.keys import coord_cell
 from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
@@ -175,6 +174,8 @@ class TileSet:
     def add_points(self, points: NDArray[np.floating]) -> int:
         """Count every point (x, y, z, metres, shape (N, 3)) whose z is in the band; non-finite
         points are skipped. Returns how many counted."""
+        from scan2terrain.grids import _tile_kernels as K
+
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")

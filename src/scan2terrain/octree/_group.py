@@ -21,21 +21,21 @@ from scan2terrain.octree._sparse import (
     NREG_BITS,
     PART_BITS,
     SPARSE_LOAD,
-    _add_sparse,
-    _fib,
-    _hit_voxel,
-    _home,
     _probe,
     _region,
+    add_sparse,
+    fib,
+    hit_voxel,
+    home,
 )
 from scan2terrain.octree._table import (
-    _DEBRUIJN,
-    _DEBRUIJN_MUL,
-    _JIT,
+    DEBRUIJN,
+    DEBRUIJN_MUL,
     DONE,
-    _block_voxel_key,
+    JIT,
     _room,
     _slot,
+    block_voxel_key,
     key_block,
     key_local,
 )
@@ -53,7 +53,7 @@ RECORD = np.int64(1 << 60)
 SUB_POINTS = 4096
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _popcount(x):
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -61,11 +61,11 @@ def _popcount(x):
     return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _group_blocks(keys, start, b, tkeys, tidx, tpos, tbk, masks, nt):
     """Add the blocks of voxel keys ``keys[start:b]`` in order of first appearance (``tbk``, ``nt``
     so far) and each one's mask of voxels hit, through the hash ``tkeys`` (block id, -1 empty;
-    homes from bits of _fib below those that chose the partition and sub-bucket) -> ``tidx``;
+    homes from bits of fib below those that chose the partition and sub-bucket) -> ``tidx``;
     ``tpos``: each block's slot, to empty the hash afterwards. Returns (index reached, blocks):
     it stops before a block that would fill the hash over half (grow the arrays and call again;
     they are not grown here, as numba would count references to arrays reassigned in a loop at
@@ -76,7 +76,7 @@ def _group_blocks(keys, start, b, tkeys, tidx, tpos, tbk, masks, nt):
         key = keys[i]
         bk = key_block(key)
         if bk != last_bk:
-            h = _home(bk, 16, cap - 1)
+            h = home(bk, 16, cap - 1)
             while tkeys[h] != -1 and tkeys[h] != bk:
                 h = (h + 1) & (cap - 1)
             if tkeys[h] == -1:
@@ -94,7 +94,7 @@ def _group_blocks(keys, start, b, tkeys, tidx, tpos, tbk, masks, nt):
     return b, nt
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _place_blocks(
     keys, w, dbuf, dw, tbk, masks, nt, vt, st, sparse_counts, dense_min, max_hits, out
 ):
@@ -138,12 +138,12 @@ def _place_blocks(
                 while rest:
                     bit = rest & (~rest + np.uint64(1))
                     rest ^= bit
-                    local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
-                    new += _hit_voxel(vt, _block_voxel_key(bk, local), r, max_hits)
-            _add_sparse(st, bk, r, held, new, sparse_counts)
+                    local = word * 64 + DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
+                    new += hit_voxel(vt, block_voxel_key(bk, local), r, max_hits)
+            add_sparse(st, bk, r, held, new, sparse_counts)
             out[r, 3] += d
             if held + new >= dense_min:  # promoted: one key stands for the block
-                keys[w] = _block_voxel_key(bk, 0) | DENSE_RUN | ADOPT_RUN | NO_BITS
+                keys[w] = block_voxel_key(bk, 0) | DENSE_RUN | ADOPT_RUN | NO_BITS
                 w += 1
                 out[r, 2] += 1
             continue
@@ -162,7 +162,7 @@ def _place_blocks(
     return w, dw
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def _write_block(keys, w, bk, masks, u, flags):
     """The voxel keys of block ``bk`` (``masks[u]``) from ``keys[w]`` on, by index in the block,
     the first one with ``flags``; returns the index after the last."""
@@ -171,14 +171,14 @@ def _write_block(keys, w, bk, masks, u, flags):
         while rest:
             bit = rest & (~rest + np.uint64(1))
             rest ^= bit
-            local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
-            keys[w] = _block_voxel_key(bk, local) | flags
+            local = word * 64 + DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
+            keys[w] = block_voxel_key(bk, local) | flags
             flags = 0
             w += 1
     return w
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def _item(keys, i, end):
     """The block of the item at ``keys[i]`` of group_new_points' output and the index after
     the item: a record (RECORD | block id, then 8 mask words) or a run of a block's voxel keys
@@ -193,7 +193,7 @@ def _item(keys, i, end):
     return bk, j
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def group_new_points(keys, seg, vt, st, sparse_counts, dense_min, max_hits, threads):
     """Partition by partition, on every core: each distinct voxel of the points' voxel keys
     (partition p's in ``keys[seg[p]:seg[p + 1]]``) once, block by block (blocks by region, then
@@ -219,14 +219,14 @@ def group_new_points(keys, seg, vt, st, sparse_counts, dense_min, max_hits, thre
     return written, out
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _sub_bucket(key, bits):
-    """Sub-bucket of a voxel key within its partition: the ``bits`` of _fib(its block) below
+    """Sub-bucket of a voxel key within its partition: the ``bits`` of fib(its block) below
     the partition's (so sub-buckets nest in regions)."""
-    return np.int64((_fib(key_block(key)) << np.uint64(PART_BITS)) >> np.uint64(64 - bits))
+    return np.int64((fib(key_block(key)) << np.uint64(PART_BITS)) >> np.uint64(64 - bits))
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _group_partitions(
     t, threads, keys, seg, vt, st, sparse_counts, dense_min, max_hits, written, out
 ):
@@ -289,7 +289,7 @@ def _group_partitions(
                     grown[:nt] = masks[:nt]
                     masks = grown
                     for u in range(nt):
-                        h = _home(tbk[u], 16, cap - 1)
+                        h = home(tbk[u], 16, cap - 1)
                         while tkeys[h] != -1:
                             h = (h + 1) & (cap - 1)
                         tkeys[h] = tbk[u]
@@ -317,7 +317,7 @@ def _group_partitions(
         written[p, 1] = w + dw - a
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def upsert_sparse(keys, seg, written, vt, st, sparse_counts, dense_min, max_hits):
     """Partition by partition, on every core: one hit in the sparse store for each voxel of the
     blocks :func:`group_new_points` left for want of room (the tables must have room now); a
@@ -341,14 +341,14 @@ def upsert_sparse(keys, seg, written, vt, st, sparse_counts, dense_min, max_hits
                     while rest:
                         bit = rest & (~rest + np.uint64(1))
                         rest ^= bit
-                        local = word * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
-                        new += _hit_voxel(vt, _block_voxel_key(bk, local), r, max_hits)
+                        local = word * 64 + DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
+                        new += hit_voxel(vt, block_voxel_key(bk, local), r, max_hits)
                         hits[p, 0] += 1
             else:
                 for m in range(i, j):
-                    new += _hit_voxel(vt, keys[m], r, max_hits)
+                    new += hit_voxel(vt, keys[m], r, max_hits)
                 hits[p, 0] += j - i
-            _add_sparse(st, bk, r, held, new, sparse_counts)
+            add_sparse(st, bk, r, held, new, sparse_counts)
             if held + new >= dense_min:
                 keys[i] |= DENSE_RUN | ADOPT_RUN | NO_BITS
                 hits[p, 1] += 1
@@ -356,7 +356,7 @@ def upsert_sparse(keys, seg, written, vt, st, sparse_counts, dense_min, max_hits
     return hits
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def alloc_dense_runs(
     keys,
     seg,

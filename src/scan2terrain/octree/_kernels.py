@@ -21,7 +21,7 @@ from scan2terrain.octree._group import group_new_points, upsert_sparse
 from scan2terrain.octree._points import count_points, mark_point_bits, place_points
 from scan2terrain.octree._raycast import apply_blocks, cast_parallel, flag_blocks
 from scan2terrain.octree._sparse import sparse_rehash
-from scan2terrain.octree._table import _JIT
+from scan2terrain.octree._table import JIT
 
 
 class Kernels(NamedTuple):
@@ -47,7 +47,7 @@ def _serial(dispatcher: Any) -> Any:
     g = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__)
     g.__qualname__ = f.__qualname__ + "_serial"
     g.__doc__ = f.__doc__
-    return nb.njit(**_JIT)(g)
+    return nb.njit(**JIT)(g)
 
 
 PARALLEL = Kernels(

@@ -15,9 +15,9 @@ import numpy as np
 from scan2terrain._numba import numba as nb
 from scan2terrain.octree._sparse import NPART, NREG_BITS, PART_BITS, _region
 from scan2terrain.octree._table import (
-    _JIT,
     DONE,
     EMPTY,
+    JIT,
     N_TOUCHED,
     NEED_TOUCHED,
     STAMP,
@@ -35,7 +35,7 @@ NONFINITE = -(NPART + 3)
 CHUNK = 1 << 16
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def count_points(points, resolution, table_keys, table_slots, cls):
     """End points only, first pass, on every core, CHUNK points at a time (the table is only
     read). Each point's class into ``cls`` (int32): its block's slot in the dense store (>= 0),
@@ -87,7 +87,7 @@ def count_points(points, resolution, table_keys, table_slots, cls):
     return hist
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def place_points(points, resolution, cls, offsets, new, dense):
     """End points only, second pass, on every core: the voxel key of each point outside the
     dense store into ``new``, partition by partition (point order within one), and
@@ -122,7 +122,7 @@ def place_points(points, resolution, cls, offsets, new, dense):
                 dense[at] = (cs << 9) | (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def touch_points(dense, start, stamp, counts, touched):
     """End points only (serial): record every dense block the points hit (``dense``, from
     :func:`place_points`) as touched by this call. Resumable (it stops for room in
@@ -144,7 +144,7 @@ def touch_points(dense, start, stamp, counts, touched):
     return n, DONE
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def mark_point_bits(dense, planes, bits):
     """End points only, on every core: thread t sets the bits of its points in the dense store
     (``dense``, from :func:`place_points`) in its own words 8 + 8t .. 15 + 8t (chunks t, t + T,

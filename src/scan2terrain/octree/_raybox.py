@@ -22,8 +22,8 @@ import numpy as np
 from scan2terrain._numba import numba as nb
 from scan2terrain.octree._raycast import dda_step, ray_start, update_word
 from scan2terrain.octree._table import (
-    _JIT,
     DONE,
+    JIT,
     WANTED,
     _room,
     _slot,
@@ -32,7 +32,7 @@ from scan2terrain.octree._table import (
 )
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
     """computeRayKeys from o to e (float32), setting each voxel's bit in its block's row of
     ``plane``; False if the ray would leave the box (nothing more set)."""
@@ -56,7 +56,7 @@ def _ray(ox, oy, oz, ex, ey, ez, resolution, lo, nbk, bits, plane):
             return True
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def cast_box(origin, ends, kind, resolution, lo, nbk, bits):
     """Every clearing ray's miss bits, on every core: chunks of 256 rays, handed to the threads
     as they ask (numba.parallel_chunksize(1) around the call: a thread whose core is taken by
@@ -88,7 +88,7 @@ def cast_box(origin, ends, kind, resolution, lo, nbk, bits):
     return left.sum()
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def alloc_box(
     bits, lo, nbk, start, rows, block_xyz, stamp, table_keys, table_slots, counts, touched
 ):
@@ -115,7 +115,7 @@ def alloc_box(
     return bits.shape[1], DONE
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def _marked(bits, row):
     """Whether ``row`` of the box has a bit in some plane."""
     marked = np.uint64(0)
@@ -125,7 +125,7 @@ def _marked(bits, row):
     return marked != 0
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _marked_rows(bits, start):
     """Rows from ``start`` on with a bit in some plane."""
     n = 0
@@ -134,7 +134,7 @@ def _marked_rows(bits, start):
     return n
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def apply_box(values, bits, rows, model):
     """OctoMap's updateNodeLogOdds once per marked voxel of the box (a hit where the hit bit is
     set, else a miss), into the dense store's block ``rows[row]``, clearing the bits (every

@@ -21,10 +21,10 @@ import numpy as np
 
 from scan2terrain._numba import numba as nb
 from scan2terrain.octree._table import (
-    _DEBRUIJN,
-    _DEBRUIJN_MUL,
-    _JIT,
+    DEBRUIJN,
+    DEBRUIJN_MUL,
     DONE,
+    JIT,
     TREE_MAX_VAL,
     _room,
     _slot,
@@ -33,7 +33,7 @@ from scan2terrain.octree._table import (
 )
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _axis_start(k, s, o, d, resolution):
     """tMax and tDelta of one axis, as computeRayKeys computes them (double from float)."""
     if s == 0:
@@ -44,12 +44,12 @@ def _axis_start(k, s, o, d, resolution):
     return (border - np.float64(o)) / np.float64(d), resolution / np.float64(abs(d))
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _sign(d):
     return 1 if d > 0.0 else (-1 if d < 0.0 else 0)
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def ray_start(ox, oy, oz, ex, ey, ez, resolution):
     """computeRayKeys' set-up from o to e (float32): the keys of o and of e, the step of each
     axis, its tMax and tDelta, and the ray's length (float32). Shared by the two casts (dense
@@ -75,7 +75,7 @@ def ray_start(ox, oy, oz, ex, ey, ez, resolution):
     return kx, ky, kz, ekx, eky, ekz, sx, sy, sz, tx, ty, tz, ddx, ddy, ddz, length
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz):
     """One step of the DDA along the axis of the minimum tMax, ties going to the later axis,
     exactly as computeRayKeys (for voxels, and for blocks in flag_blocks)."""
@@ -95,7 +95,7 @@ def dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz):
     return kx, ky, kz, tx, ty, tz
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def scan_rays(points, origin, max_range, resolution):
     """OctoMap's computeUpdate, per point: the ray's end and what to do with it.
 
@@ -150,7 +150,7 @@ def scan_rays(points, origin, max_range, resolution):
     return ends, kind, stats
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def block_bounds(origin, ends, resolution):
     """Min and max block coordinates (int64 (2, 3)) of the origin's and the ends' voxels."""
     res_factor = 1.0 / resolution
@@ -169,7 +169,7 @@ def block_bounds(origin, ends, resolution):
     return out
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def flag_blocks(origin, ends, kind, resolution, dense, box):
     """First pass of a scan, on every core: flag (-2) in ``dense`` every block of the scan's box
     that a ray's segment passes through or that holds a hit, by a DDA over blocks (8 voxels a
@@ -214,7 +214,7 @@ def flag_blocks(origin, ends, kind, resolution, dense, box):
             bx, by, bz, tx, ty, tz = dda_step(bx, by, bz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def alloc_flagged(
     dense, box, start, bits, block_xyz, stamp, table_keys, table_slots, counts, touched
 ):
@@ -245,7 +245,7 @@ def alloc_flagged(
     return dense.shape[0], DONE
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def mark_hits(
     ends,
     kind,
@@ -297,7 +297,7 @@ def mark_hits(
     return ends.shape[0], DONE
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _cast(
     ox,
     oy,
@@ -356,7 +356,7 @@ def _cast(
             return True
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def cast_parallel(
     origin,
     ends,
@@ -412,7 +412,7 @@ def cast_parallel(
     return np.flatnonzero(deferred)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def cast_serial(
     origin,
     ends,
@@ -466,7 +466,7 @@ def cast_serial(
     return rays.shape[0], DONE
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def update_word(values, cs, w, hit_word, any_word, model):
     """OctoMap's updateNodeLogOdds once per voxel of word ``w`` of block ``cs`` marked in
     ``any_word``: a hit where ``hit_word`` has its bit, else a miss. Returns (hits, misses).
@@ -478,7 +478,7 @@ def update_word(values, cs, w, hit_word, any_word, model):
     while rest:  # each set bit, lowest first: cost follows the marks, not 64 per word
         bit = rest & (~rest + np.uint64(1))
         rest ^= bit
-        local = w * 64 + _DEBRUIJN[(bit * _DEBRUIJN_MUL) >> np.uint64(58)]
+        local = w * 64 + DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
         v = values[cs, local]
         if math.isnan(v):
             v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
@@ -492,7 +492,7 @@ def update_word(values, cs, w, hit_word, any_word, model):
     return hits, misses
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def apply_blocks(values, bits, touched, n_touched, model, all_hits):
     """OctoMap's updateNodeLogOdds once per marked voxel of the touched blocks (a hit where the
     hit bit is set, else a miss where any thread's miss bit is set; with ``all_hits``, as for

@@ -10,7 +10,7 @@ voxels. insert_endpoints keeps such blocks in a voxel-level open-addressing hash
   each such block the voxel table holds (known at once when the block turns dense).
 
 Both have a power-of-two capacity split into NREG regions of equal size; a block's region is the
-top bits of _fib(block id), and its voxels' entries and its count live in that region of each
+top bits of fib(block id), and its voxels' entries and its count live in that region of each
 table (linear probing wraps within the region). ``sparse_counts[r]`` = (voxels, blocks) in
 region r. A block with DENSE_MIN voxels or more moves to the dense store (adopt_sparse). A block
 is in the dense store or in the sparse one.
@@ -32,10 +32,10 @@ import numpy as np
 
 from scan2terrain._numba import numba as nb
 from scan2terrain.octree._table import (
-    _JIT,
+    JIT,
     KEY_LIMIT,
-    _block_voxel_key,
     block_id,
+    block_voxel_key,
     table_find,
     table_insert,
     voxel_key,
@@ -53,34 +53,34 @@ BLOCK_MASK = np.int64((1 << 39) - 1)
 SPARSE_LOAD = 0.7
 
 
-@nb.njit(**_JIT)
-def _fib(x):
+@nb.njit(**JIT)
+def fib(x):
     """Fibonacci hashing (Knuth): x times 2**64 / golden ratio; its top bits are well spread,
     also for keys on a lattice, and it costs one multiplication (it runs for every point)."""
     return np.uint64(x) * np.uint64(0x9E3779B97F4A7C15)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _region(bk):
-    """Region of block ``bk``: the top NREG_BITS of _fib(bk)."""
-    return np.int64(_fib(bk) >> np.uint64(64 - NREG_BITS))
+    """Region of block ``bk``: the top NREG_BITS of fib(bk)."""
+    return np.int64(fib(bk) >> np.uint64(64 - NREG_BITS))
 
 
-@nb.njit(**_JIT)
-def _home(k, skip, mask):
-    """Slot of ``k`` within a region of ``mask + 1`` slots: the bits of _fib(k) below its top
+@nb.njit(**JIT)
+def home(k, skip, mask):
+    """Slot of ``k`` within a region of ``mask + 1`` slots: the bits of fib(k) below its top
     ``skip`` (block ids skip the bits that chose their region)."""
-    return np.int64(_fib(k) >> np.uint64(40 - skip)) & mask
+    return np.int64(fib(k) >> np.uint64(40 - skip)) & mask
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def _probe(table, k, kmask, r):
     """Index of the entry of region ``r`` whose bits ``kmask`` are ``k``, or of the empty slot
     where it would go (voxel keys: ``kmask`` KEY_MASK, block ids: BLOCK_MASK)."""
     size = table.shape[0] >> NREG_BITS
     mask = size - 1
     base = r * size
-    i = _home(k, 0 if kmask == KEY_MASK else NREG_BITS, mask)
+    i = home(k, 0 if kmask == KEY_MASK else NREG_BITS, mask)
     while True:
         e = table[base + i]
         if e == 0 or (e & kmask) == k:
@@ -88,7 +88,7 @@ def _probe(table, k, kmask, r):
         i = (i + 1) & mask
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(inline="always", **JIT)
 def _remove(table, at, kmask):
     """Empty entry ``at``; entries after it in its probe run move back (no tombstones)."""
     size = table.shape[0] >> NREG_BITS
@@ -102,7 +102,7 @@ def _remove(table, at, kmask):
         e = table[base + j]
         if e == 0:
             break
-        h = _home(e & kmask, skip, mask)
+        h = home(e & kmask, skip, mask)
         # e stays unless the hole i lies on its probe path from h to j (cyclically)
         if (i <= j and (h <= i or h > j)) or (i > j and h <= i and h > j):
             table[base + i] = e
@@ -110,7 +110,7 @@ def _remove(table, at, kmask):
     table[base + i] = 0
 
 
-@nb.njit(parallel=True, **_JIT)
+@nb.njit(parallel=True, **JIT)
 def sparse_rehash(table, kmask, out):
     """Copy a sparse-store table into ``out`` (zeros, a larger power of two); entries keep their
     region, so the regions are rehashed on every core."""
@@ -122,7 +122,7 @@ def sparse_rehash(table, kmask, out):
                 out[_probe(out, e & kmask, kmask, r)] = e
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
     """Move the sparse store's voxels of block (bx, by, bz) into dense block ``cs`` (values
     already NaN), if it has any."""
@@ -138,7 +138,7 @@ def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
     for local in range(512):
         if left == 0:
             break
-        at = _probe(vt, _block_voxel_key(bk, local), KEY_MASK, r)
+        at = _probe(vt, block_voxel_key(bk, local), KEY_MASK, r)
         e = vt[at]
         if e != 0:
             values[cs, local] = lut[e >> HITS_SHIFT]
@@ -146,7 +146,7 @@ def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
             left -= 1
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def adopt_sparse(slots, values, block_xyz, vt, st, sparse_counts, lut):
     """Dense blocks ``slots`` (values already NaN) take over their voxels from the sparse store."""
     for j in range(slots.shape[0]):
@@ -155,7 +155,7 @@ def adopt_sparse(slots, values, block_xyz, vt, st, sparse_counts, lut):
         _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def sparse_voxels(vt, lut, n):
     """The sparse store's ``n`` voxels: keys uint16 (n, 3) and log-odds float32 (n,), in
     table order."""
@@ -173,8 +173,8 @@ def sparse_voxels(vt, lut, n):
     return keys, lo
 
 
-@nb.njit(inline="always", **_JIT)
-def _hit_voxel(vt, key, r, max_hits):
+@nb.njit(inline="always", **JIT)
+def hit_voxel(vt, key, r, max_hits):
     """One hit for voxel ``key`` (region ``r``) in the voxel table; 1 if it is new there."""
     at = _probe(vt, key, KEY_MASK, r)
     e = vt[at]
@@ -186,8 +186,8 @@ def _hit_voxel(vt, key, r, max_hits):
     return 0
 
 
-@nb.njit(inline="always", **_JIT)
-def _add_sparse(st, bk, r, held, new, sparse_counts):
+@nb.njit(inline="always", **JIT)
+def add_sparse(st, bk, r, held, new, sparse_counts):
     """Count ``new`` voxels of block ``bk`` (which had ``held``) in the block table."""
     if new == 0:
         return
@@ -199,7 +199,7 @@ def _add_sparse(st, bk, r, held, new, sparse_counts):
     sparse_counts[r, 0] += new
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def lookup(keys, values, table_keys, table_slots, vt, lut):
     """Log-odds of voxel keys (int64 (N, 3)), from the dense store or else the sparse store's
     voxel table ``vt``; NaN where unknown."""
@@ -220,7 +220,7 @@ def lookup(keys, values, table_keys, table_slots, vt, lut):
     return out
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def set_values(
     keys, logodds, values, block_xyz, table_keys, table_slots, counts, vt, st, sparse_counts, lut
 ):

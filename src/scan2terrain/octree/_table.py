@@ -32,29 +32,29 @@ N_BLOCKS, N_TOUCHED, STAMP = 0, 1, 2
 #: the store grows once to fit instead of doubling again and again (alloc_box sets it).
 WANTED = 3
 
-_JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
+JIT = {"nogil": True, "cache": True, "error_model": "numpy"}
 # Helpers that take arrays and run once per point or voxel are inlined by numba (inline="always"):
 # a call passing arrays counts references to them, which costs several times the work.
 
 # Index of a word's lowest set bit: (bit * De Bruijn constant) >> 58 is unique per bit.
-_DEBRUIJN_MUL = np.uint64(0x03F79D71B4CB0A89)
-_DEBRUIJN = np.zeros(64, dtype=np.int64)
+DEBRUIJN_MUL = np.uint64(0x03F79D71B4CB0A89)
+DEBRUIJN = np.zeros(64, dtype=np.int64)
 for _b in range(64):
-    _DEBRUIJN[((1 << _b) * 0x03F79D71B4CB0A89 % (1 << 64)) >> 58] = _b
+    DEBRUIJN[((1 << _b) * 0x03F79D71B4CB0A89 % (1 << 64)) >> 58] = _b
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def block_id(bx: int, by: int, bz: int) -> np.int64:
     return (np.int64(bx) << 26) | (np.int64(by) << 13) | np.int64(bz)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _hash(k: np.int64, mask: np.int64) -> np.int64:
     h = np.uint64(k) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64(h >> np.uint64(20)) & mask
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def table_find(table_keys, table_slots, k):
     """Slot of block id ``k`` or -1."""
     mask = np.int64(table_keys.shape[0] - 1)
@@ -68,7 +68,7 @@ def table_find(table_keys, table_slots, k):
         i = (i + 1) & mask
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def table_insert(table_keys, table_slots, k, slot):
     mask = np.int64(table_keys.shape[0] - 1)
     i = _hash(k, mask)
@@ -78,7 +78,7 @@ def table_insert(table_keys, table_slots, k, slot):
     table_slots[i] = slot
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def rehash(block_xyz, n_blocks, capacity):
     """A new table of ``capacity`` (a power of two) holding blocks 0..n_blocks-1."""
     keys = np.full(capacity, EMPTY, dtype=np.int64)
@@ -88,7 +88,7 @@ def rehash(block_xyz, n_blocks, capacity):
     return keys, slots
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def coord_to_key(c: float, res_factor: float) -> int:
     """OctoMap's coordToKeyChecked: floor(c / res) + 32768, or -1 outside the key range."""
     scaled = math.floor(res_factor * c)
@@ -97,7 +97,7 @@ def coord_to_key(c: float, res_factor: float) -> int:
     return int(scaled) + TREE_MAX_VAL
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _slot(k, bx, by, bz, block_xyz, stamp, table_keys, table_slots, counts, touched):
     """Slot of block ``k`` (allocated if new), recorded as touched by this scan."""
     cs = table_find(table_keys, table_slots, k)
@@ -116,7 +116,7 @@ def _slot(k, bx, by, bz, block_xyz, stamp, table_keys, table_slots, counts, touc
     return cs
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def _room(span, counts, block_xyz, touched, table_keys):
     """DONE if ``span`` more voxels, each in a new block, fit the arrays, else what to grow."""
     if counts[N_BLOCKS] + span > block_xyz.shape[0]:
@@ -128,32 +128,32 @@ def _room(span, counts, block_xyz, touched, table_keys):
     return DONE
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def voxel_key(kx, ky, kz):
     return (np.int64(kx) << 32) | (np.int64(ky) << 16) | np.int64(kz)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def key_block(key):
     """Block id of a voxel key (flags masked off)."""
     return block_id((key >> 35) & 8191, (key >> 19) & 8191, (key >> 3) & 8191)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def key_local(key):
     """Voxel index of a voxel key within its block."""
     return ((key >> 32) & 7) | (((key >> 16) & 7) << 3) | ((key & 7) << 6)
 
 
-@nb.njit(**_JIT)
-def _block_voxel_key(bk, local):
+@nb.njit(**JIT)
+def block_voxel_key(bk, local):
     kx = ((bk >> 26) << 3) | (local & 7)
     ky = (((bk >> 13) & 8191) << 3) | ((local >> 3) & 7)
     kz = ((bk & 8191) << 3) | (local >> 6)
     return voxel_key(kx, ky, kz)
 
 
-@nb.njit(**_JIT)
+@nb.njit(**JIT)
 def dense_voxels(values, block_xyz, n_blocks):
     """The dense store's known voxels (value not NaN): keys uint16 (M, 3) and log-odds float32
     (M,), block by block, each block's in local order (x fastest, then y, z). Two passes (count,

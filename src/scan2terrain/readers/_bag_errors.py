@@ -1,15 +1,15 @@
 """How reading a bag fails, in words, and the defects of old ROS1 bags that are read anyway.
 
-:func:`_explain` puts an exception of rosbags (or of its sqlite/mcap/zstd backends) in one
+:func:`explain` puts an exception of rosbags (or of its sqlite/mcap/zstd backends) in one
 sentence of ours naming what holds the bag (the ROS1 bag, the MCAP file, the sqlite3 file), never
 Python's own words ("ord() expected a character...", "unpack requires a buffer..."),
-:func:`_culprit` finds the file of a split ROS1 recording to name, :func:`_undecodable` says why
+:func:`culprit` finds the file of a split ROS1 recording to name, :func:`_undecodable` says why
 a message type cannot be deserialised; all for :mod:`scan2terrain.readers.bag`. Choices:
 
 * **Broken ROS1 indexes are rebuilt.** Some old rosbag writers (e.g. the 2010 CCNY demo bag)
   wrote ``IDXDATA`` records whose declared length does not match their entries; rosbags then
   fails with a bare ``AssertionError``. The per-chunk index only says where each message sits in
-  its chunk, so when rosbags rejects it, :class:`_Ros1Reader` walks that chunk's records
+  its chunk, so when rosbags rejects it, :class:`Ros1Reader` walks that chunk's records
   instead (a few dozen lines, the layout rosbags' own reader parses) and a
   :class:`~scan2terrain.readers.bag.BagWarning` says so. Bags whose *file-level* index is
   missing (a killed recording, a truncated copy) are refused with the ROS1 fix
@@ -37,7 +37,7 @@ from rosbags.rosbag1.reader import RecordType as _Ros1Record
 from rosbags.rosbag1.reader import read_bytes as _read_bytes
 from rosbags.rosbag1.reader import read_uint32 as _read_uint32
 
-from scan2terrain.readers._bag_source import _Source
+from scan2terrain.readers._bag_source import Source
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 # --- ROS1: the rosbags reader, with an index rebuilt from the chunks where it is broken -----------
 
 
-class _Ros1Reader(_RosbagsReader1):
+class Ros1Reader(_RosbagsReader1):
     """rosbags' ROS1 reader that survives two defects of old bags.
 
     * ``IDXDATA`` records that rosbags rejects (an ``AssertionError`` from its fast parser): the
@@ -167,7 +167,7 @@ def _storage(read: Path) -> str | None:
     return kinds.pop() if len(kinds) == 1 else None
 
 
-def _explain(exc: BaseException, *, reading: bool = False, storage: str | None = None) -> str:
+def explain(exc: BaseException, *, reading: bool = False, storage: str | None = None) -> str:
     """One sentence for an exception raised by rosbags (or its sqlite/mcap/zstd backends).
 
     ``reading``: raised while streaming messages, after the bag opened fine. ``storage``: what
@@ -185,7 +185,7 @@ def _explain(exc: BaseException, *, reading: bool = False, storage: str | None =
     if isinstance(exc, UnicodeError):  # its args hold the whole undecodable bytes
         return f"{noun} is damaged: it holds text (a name or a definition) that is not UTF-8"
     text = " ".join(str(a) for a in exc.args) if exc.args else ""
-    text = _one_line(text).rstrip(".")
+    text = one_line(text).rstrip(".")
     for pattern, only, sentence in _SENTENCES:
         if only not in (None, storage):
             continue
@@ -212,7 +212,7 @@ def _decompression_failed(exc: BaseException) -> bool:
     return name == "ZstdError" or "lz4" in type(exc).__module__ or "data stream" in str(exc)
 
 
-def _one_line(text: str, limit: int = 200) -> str:
+def one_line(text: str, limit: int = 200) -> str:
     """A library's message as one short line (rosbags quotes whole message definitions)."""
     text = " ".join(text.split())
     return text if len(text) <= limit else text[:limit] + "..."
@@ -228,16 +228,16 @@ def _undecodable(typestore: Typestore, msgtype: str) -> str | None:
             return f"message type {msgtype} has no definition in the bag nor in ROS 2 Humble"
         return f"the definition of {msgtype} needs {missing}, which is not defined"
     except Exception as exc:  # rosbags' code generator rejecting a definition
-        return f"the definition of {msgtype} cannot be used ({_one_line(str(exc))})"
+        return f"the definition of {msgtype} cannot be used ({one_line(str(exc))})"
     return None
 
 
-def _culprit(source: _Source, default: Path) -> Path:
+def culprit(source: Source, default: Path) -> Path:
     """Which file of a split ROS1 set fails to open on its own (the first one if none does)."""
     if len(source.paths) == 1:
         return default
     for given, read in zip(source.paths, source.read, strict=True):
-        reader = _Ros1Reader(read)
+        reader = Ros1Reader(read)
         try:
             reader.open()
         except Exception:  # the same failure as in open_bag, now attributed to one file

@@ -41,6 +41,7 @@ from pathlib import Path, PurePath
 from typing import Any
 
 from scan2terrain.errors import InputError
+from scan2terrain.fileio import TMP_PREFIX, locked, sweep, try_lock
 from scan2terrain.readers._files import regular_file
 
 if sys.version_info >= (3, 14):  # pragma: no cover
@@ -118,7 +119,7 @@ def _not_a_bag(path: Path, kind: str) -> InputError:
 
 
 @dataclass(frozen=True)
-class _Source:
+class Source:
     """What to hand to AnyReader, and which path to name in messages."""
 
     paths: tuple[Path, ...]  # as given by the user (named in errors)
@@ -133,7 +134,6 @@ def _temp_folder(stack: ExitStack) -> Path:
     under a short lock on the temporary folder, as for output folders).
     """
     # Lazy: the output module is a later stage's, shared here as fileio shares it.
-    from scan2terrain.fileio import TMP_PREFIX, locked, sweep, try_lock
 
     parent = Path(tempfile.gettempdir())
     try:
@@ -316,7 +316,7 @@ def _unpack_file_mode(folder: Path, info: dict[str, Any], stack: ExitStack) -> P
     return staged
 
 
-def _rosbag2(path: Path, stack: ExitStack) -> _Source:
+def _rosbag2(path: Path, stack: ExitStack) -> Source:
     """A rosbag2 folder: its metadata.yaml and storage files must be regular files."""
     meta = path / "metadata.yaml"
     if regular_file(meta, "bag") > MAX_METADATA_BYTES:
@@ -330,15 +330,15 @@ def _rosbag2(path: Path, stack: ExitStack) -> _Source:
             regular_file(entry, "bag")
     staged = _unpack_file_mode(path, info, stack)
     if staged is not None:
-        return _Source((path,), (staged,))
+        return Source((path,), (staged,))
     if path.suffix == ".bag":  # rosbags reads every *.bag path as a ROS1 file
         link = _temp_folder(stack) / path.stem
         link.symlink_to(path.resolve(), target_is_directory=True)
-        return _Source((path,), (link,))
-    return _Source((path,), (path,))
+        return Source((path,), (link,))
+    return Source((path,), (path,))
 
 
-def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Source:
+def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> Source:
     items = [Path(given)] if isinstance(given, (str, os.PathLike)) else [Path(p) for p in given]
     if not items:
         raise InputError(None, "no bag given")
@@ -355,7 +355,7 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
                     "each must be a ROS1 .bag file",
                 )
             staged.append(_stage(p, kind, stack))
-        return _Source(tuple(items), tuple(staged))
+        return Source(tuple(items), tuple(staged))
 
     path = items[0]
     if path.is_file() and path.name == "metadata.yaml":
@@ -371,14 +371,14 @@ def _source(given: Path | str | Sequence[Path | str], stack: ExitStack) -> _Sour
             p for p in path.iterdir() if p.is_file() and p.name.endswith(_STORAGE_NAMES)
         )
         if len(storage) == 1:
-            return _Source((path,), _source(storage[0], stack).read)
+            return Source((path,), _source(storage[0], stack).read)
         raise InputError(
             path,
             "no bag in this folder (expected metadata.yaml, .bag files, or one .db3/.mcap file)",
         )
     kind = _sniff(path)
     if kind == "zstd":
-        return _Source((path,), (_decompress(path, stack),))
+        return Source((path,), (_decompress(path, stack),))
     if kind in {"ros1", *_STORAGE_SUFFIX}:
-        return _Source((path,), (_stage(path, kind, stack),))
+        return Source((path,), (_stage(path, kind, stack),))
     raise _not_a_bag(path, kind)

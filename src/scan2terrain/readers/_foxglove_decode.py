@@ -15,11 +15,11 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import shown
 from scan2terrain.readers.foxglove import (
-    _NS,
     FRAME_TRANSFORM,
     FRAME_TRANSFORMS,
     GRID,
     LASER_SCAN,
+    NS,
     POINT_CLOUD,
     POSE_IN_FRAME,
     Grid,
@@ -161,7 +161,7 @@ def _time(m: _Fields) -> Time:
             t.integer("nanos"),
         )
     )
-    if sec < 0 or not 0 <= nsec < _NS:
+    if sec < 0 or not 0 <= nsec < NS:
         raise ValueError(f"{m.what}.timestamp ({sec} s, {nsec} ns) is not a time")
     return Time(sec, nsec)
 
@@ -253,7 +253,7 @@ ADAPTERS: dict[str, Callable[[_Fields], object]] = {
 
 def _proto_time(ts: Any, what: Callable[[], str]) -> Time:
     sec, nsec = ts.seconds, ts.nanos
-    if sec < 0 or not 0 <= nsec < _NS:
+    if sec < 0 or not 0 <= nsec < NS:
         raise ValueError(f"{what()}.timestamp ({sec} s, {nsec} ns) is not a time")
     return Time(sec, nsec)
 

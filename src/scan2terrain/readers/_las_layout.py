@@ -290,7 +290,7 @@ def _laszip_payload(vlrs: bytes, n: int) -> bytes | None:
     return None
 
 
-def _check_laz(
+def _check_laz(  # noqa: PLR0913 (the header fields the chunk table is checked against)
     f: BinaryIO,
     size: int,
     laszip: bytes,

@@ -70,24 +70,24 @@ from rosbags.typesys.msg import normalize_msgtype
 
 from scan2terrain.errors import InputError, shown
 from scan2terrain.readers import _foxglove_decode, foxglove
-from scan2terrain.readers._bag_errors import _one_line, _undecodable
+from scan2terrain.readers._bag_errors import _undecodable, one_line
 from scan2terrain.readers._mcap_layout import (
-    _DAMAGED,
-    _MESSAGE_HEAD,
-    _MESSAGE_HEAD_SIZE,
-    _OPLEN,
+    DAMAGED,
     MAGIC,
+    MESSAGE_HEAD,
+    MESSAGE_HEAD_SIZE,
+    OPLEN,
     RUN_BYTES,
-    _Block,
-    _chunk_bytes,
-    _Damaged,
-    _in_order,
-    _Layout,
+    Block,
+    Damaged,
+    Layout,
     _messages,
     _parse,
-    _read_chunk,
     _records,
     _split,
+    chunk_bytes,
+    in_order,
+    read_chunk,
 )
 
 if sys.version_info >= (3, 14):  # pragma: no cover
@@ -169,9 +169,9 @@ class McapFile:
         try:
             self._layout = self._read_layout()
             self._connections()
-        except _Damaged as exc:
+        except Damaged as exc:
             self._f.close()
-            raise InputError(self._named, f"{_DAMAGED}: {exc}") from None
+            raise InputError(self._named, f"{DAMAGED}: {exc}") from None
         except BaseException:
             self._f.close()
             raise
@@ -203,30 +203,30 @@ class McapFile:
     def message_count(self) -> int:
         return sum(self._layout.counts.values())
 
-    def _read_layout(self) -> _Layout:
+    def _read_layout(self) -> Layout:
         f = self._f
         size = f.seek(0, io.SEEK_END)
         f.seek(0)
         if f.read(8) != MAGIC:
-            raise _Damaged("it does not start with the MCAP magic")
+            raise Damaged("it does not start with the MCAP magic")
         footer_at = size - 8 - 9 - 20
         if footer_at < 8:
-            raise _Damaged("too short to hold a header and a footer")
+            raise Damaged("too short to hold a header and a footer")
         f.seek(size - 8)
         if f.read(8) != MAGIC:
-            raise _Damaged("its end marker is missing")
-        layout = _Layout()
+            raise Damaged("its end marker is missing")
+        layout = Layout()
         records = _records(f, 8, footer_at)
         _, opcode, length = next(records)
         if opcode != Opcode.HEADER:
-            raise _Damaged("its first record is not a header")
+            raise Damaged("its first record is not a header")
         header = _parse(Header.read, f.read(length), "header")
         assert isinstance(header, Header)
         layout.profile, layout.library = header.profile, header.library
         f.seek(footer_at)
-        opcode, length = _OPLEN.unpack(f.read(9))
+        opcode, length = OPLEN.unpack(f.read(9))
         if opcode != Opcode.FOOTER or length != 20:
-            raise _Damaged("its footer is missing")
+            raise Damaged("its footer is missing")
         footer = _parse(Footer.read, f.read(20), "footer")
         assert isinstance(footer, Footer)
         if footer.summary_start and self._read_summary(layout, footer, footer_at):
@@ -236,11 +236,11 @@ class McapFile:
         self._scan(layout, footer_at)
         return layout
 
-    def _read_summary(self, layout: _Layout, footer: Footer, footer_at: int) -> bool:
+    def _read_summary(self, layout: Layout, footer: Footer, footer_at: int) -> bool:
         """The schemas, channels, counts and chunks from the summary: False when it lacks
         statistics or a chunk index (the data section is scanned then)."""
         if not 8 <= footer.summary_start <= footer_at:
-            raise _Damaged("its footer points outside the file")
+            raise Damaged("its footer points outside the file")
         stats: Statistics | None = None
         chunks: list[ChunkIndex] = []
         for _, opcode, length in _records(self._f, footer.summary_start, footer_at):
@@ -267,10 +267,10 @@ class McapFile:
         for i in chunks:
             end = i.chunk_start_offset + i.chunk_length
             if not 8 <= i.chunk_start_offset < end <= footer_at:
-                raise _Damaged("its chunk index points outside the file")
+                raise Damaged("its chunk index points outside the file")
             channels = set(i.message_index_offsets) or None
             times = (i.message_start_time, i.message_end_time)
-            layout.blocks.append(_Block(i.chunk_start_offset, end, *times, channels, chunk=True))
+            layout.blocks.append(Block(i.chunk_start_offset, end, *times, channels, chunk=True))
         layout.counts.update(stats.channel_message_counts)
         if stats.message_count:
             layout.saw(stats.message_start_time)
@@ -278,17 +278,17 @@ class McapFile:
         layout.indexed = True
         return True
 
-    def _scan(self, layout: _Layout, stop: int) -> None:
+    def _scan(self, layout: Layout, stop: int) -> None:
         """Every record of the data section, once: schemas, channels, counts, blocks."""
         f = self._f
-        run: _Block | None = None
+        run: Block | None = None
         for offset, opcode, length in _records(f, 8, stop):
             if opcode == Opcode.MESSAGE:
-                if length < _MESSAGE_HEAD_SIZE:
-                    raise _Damaged("a message record shorter than its header")
-                channel, _, t_ns = _MESSAGE_HEAD.unpack(f.read(14))
+                if length < MESSAGE_HEAD_SIZE:
+                    raise Damaged("a message record shorter than its header")
+                channel, _, t_ns = MESSAGE_HEAD.unpack(f.read(14))
                 if run is None or offset - run.offset > RUN_BYTES:
-                    run = _Block(offset, offset, t_ns, t_ns, set(), chunk=False)
+                    run = Block(offset, offset, t_ns, t_ns, set(), chunk=False)
                     layout.blocks.append(run)
                 run.end = offset + 9 + length
                 run.start_ns, run.end_ns = min(run.start_ns, t_ns), max(run.end_ns, t_ns)
@@ -299,9 +299,9 @@ class McapFile:
                 continue
             run = None
             if opcode == Opcode.CHUNK:
-                chunk = _read_chunk(f.read(length), offset)
-                block = _Block(offset, offset + 9 + length, 0, 0, set(), chunk=True)
-                times = self._scan_chunk(layout, _chunk_bytes(chunk, offset), block)
+                chunk = read_chunk(f.read(length), offset)
+                block = Block(offset, offset + 9 + length, 0, 0, set(), chunk=True)
+                times = self._scan_chunk(layout, chunk_bytes(chunk, offset), block)
                 if times:
                     block.start_ns, block.end_ns = min(times), max(times)
                     layout.blocks.append(block)
@@ -310,7 +310,7 @@ class McapFile:
             elif opcode in (Opcode.DATA_END, Opcode.FOOTER):
                 break
 
-    def _scan_chunk(self, layout: _Layout, data: memoryview, block: _Block) -> list[int]:
+    def _scan_chunk(self, layout: Layout, data: memoryview, block: Block) -> list[int]:
         times = []
         assert block.channels is not None
         for op, body, end, t_ns in _split(data, block.offset):
@@ -325,7 +325,7 @@ class McapFile:
         return times
 
     @staticmethod
-    def _define(layout: _Layout, opcode: int, body: bytes) -> None:
+    def _define(layout: Layout, opcode: int, body: bytes) -> None:
         if opcode == Opcode.SCHEMA:
             schema = _parse(Schema.read, body, "schema")
             assert isinstance(schema, Schema)
@@ -341,7 +341,7 @@ class McapFile:
         layout = self._layout
         unknown = sorted(set(layout.counts) - set(layout.channels))
         if unknown:
-            raise _Damaged(f"messages on channel {unknown[0]}, which is not defined")
+            raise Damaged(f"messages on channel {unknown[0]}, which is not defined")
         self.typestore: Typestore = get_typestore(Stores.EMPTY)
         self._skip: dict[int, str] = {}
         self._ros1: dict[int, bool] = {}
@@ -370,7 +370,7 @@ class McapFile:
             self.typestore.register(typs)  # type: ignore[arg-type]
         except Exception as exc:  # two channels defining one type differently
             raise InputError(
-                self._named, f"its schemas cannot be used together ({_one_line(str(exc))})"
+                self._named, f"its schemas cannot be used together ({one_line(str(exc))})"
             ) from exc
         for conn in self.connections:
             if conn.id in self._decode:
@@ -389,7 +389,7 @@ class McapFile:
             return "", f"no schema for {ch.message_encoding!r} messages", ""
         schema = self._layout.schemas.get(ch.schema_id)
         if schema is None:
-            raise _Damaged(
+            raise Damaged(
                 f"channel {shown(ch.topic)} names schema {ch.schema_id}, which is missing"
             )
         pair = (ch.message_encoding, schema.encoding)
@@ -410,7 +410,7 @@ class McapFile:
                 return (
                     schema.name,
                     f"the {schema.encoding} schema of {schema.name} cannot be used "
-                    f"({_one_line(str(exc))})",
+                    f"({one_line(str(exc))})",
                     "",
                 )
             return schema.name, "", ""
@@ -424,7 +424,7 @@ class McapFile:
                 msgtype,
                 (
                     f"the {schema.encoding} definition of {msgtype} cannot be used "
-                    f"({_one_line(str(exc))})"
+                    f"({one_line(str(exc))})"
                 ),
                 "",
             )
@@ -488,8 +488,8 @@ class McapFile:
         ``start <= t < stop``; every connection when none are given."""
         try:
             yield from self._merged(connections, start, stop)
-        except _Damaged as exc:
-            raise InputError(self._named, f"{_DAMAGED}: {exc}") from None
+        except Damaged as exc:
+            raise InputError(self._named, f"{DAMAGED}: {exc}") from None
 
     def _merged(
         self, connections: Collection[Connection], start: int | None, stop: int | None
@@ -536,7 +536,7 @@ class McapFile:
                     if (
                         wanted
                         and (not heap or wanted[-1][1] < heap[0][0])
-                        and _in_order(wanted, rank)
+                        and in_order(wanted, rank)
                     ):
                         # Before anything else in the heap and in order already: as they are.
                         for cid, t, raw in wanted:
@@ -551,23 +551,23 @@ class McapFile:
             for load in loading.values():
                 load.cancel()
 
-    def _load(self, block: _Block) -> memoryview:
+    def _load(self, block: Block) -> memoryview:
         """A block's records: its chunk read, decompressed and checked, or its bytes. One
         ``pread`` per block (no seek, one release of the GIL: the loader thread then does not
         wait for the interpreter between small reads)."""
         size = block.end - block.offset
         data = memoryview(os.pread(self._f.fileno(), size, block.offset))
         if len(data) != size:
-            raise _Damaged("the file changed while it was read")
+            raise Damaged("the file changed while it was read")
         if not block.chunk:
             return data
-        opcode, length = _OPLEN.unpack_from(data)
+        opcode, length = OPLEN.unpack_from(data)
         if opcode != Opcode.CHUNK or 9 + length != size:
-            raise _Damaged(
+            raise Damaged(
                 f"the chunk index points at byte {block.offset} for {size:,} bytes, where there "
                 f"is a record of opcode {opcode} and {9 + length:,} bytes"
             )
-        return _chunk_bytes(_read_chunk(data[9:], block.offset), block.offset)
+        return chunk_bytes(read_chunk(data[9:], block.offset), block.offset)
 
     def close(self) -> None:
         self._f.close()

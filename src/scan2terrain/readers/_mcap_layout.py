@@ -18,7 +18,7 @@ from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Schema
 
-from scan2terrain.readers._bag_errors import _one_line
+from scan2terrain.readers._bag_errors import one_line
 from scan2terrain.readers._bag_source import MAX_ZSTD_RATIO, MIN_ZSTD_BUDGET
 
 if sys.version_info >= (3, 14):  # pragma: no cover
@@ -33,19 +33,19 @@ MAGIC = b"\x89MCAP0\r\n"
 RUN_BYTES = 4 << 20
 
 
-_OPLEN = struct.Struct("<BQ")
+OPLEN = struct.Struct("<BQ")
 
 
-_MESSAGE_HEAD = struct.Struct("<HIQ")  # channel id, sequence, log time (publish time follows)
+MESSAGE_HEAD = struct.Struct("<HIQ")  # channel id, sequence, log time (publish time follows)
 
 
-_MESSAGE_HEAD_SIZE = 22
+MESSAGE_HEAD_SIZE = 22
 
 
-_DAMAGED = "the MCAP file is truncated or damaged"
+DAMAGED = "the MCAP file is truncated or damaged"
 
 
-class _Damaged(Exception):
+class Damaged(Exception):
     """A record that does not fit where it is: said as one line by :class:`McapFile`."""
 
 
@@ -64,11 +64,11 @@ def _parse(parse: Callable[[ReadDataStream], object], body: bytes, what: str) ->
     try:
         return parse(_Exact(io.BytesIO(body)))
     except (EndOfFile, struct.error, UnicodeDecodeError) as exc:
-        raise _Damaged(f"a damaged {what} record") from exc
+        raise Damaged(f"a damaged {what} record") from exc
 
 
 @dataclass
-class _Block:
+class Block:
     """Messages read as one: a chunk record, or a run of top-level message records."""
 
     offset: int  #: of the chunk record, or of the run's first record
@@ -80,13 +80,13 @@ class _Block:
 
 
 @dataclass
-class _Layout:
+class Layout:
     profile: str = ""
     library: str = ""
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
     counts: dict[int, int] = field(default_factory=lambda: defaultdict(int))
-    blocks: list[_Block] = field(default_factory=list)
+    blocks: list[Block] = field(default_factory=list)
     start_ns: int | None = None
     end_ns: int | None = None
     indexed: bool = False
@@ -104,11 +104,11 @@ def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, in
         f.seek(pos)
         head = f.read(9)
         if len(head) < 9:
-            raise _Damaged("a record is cut short")
-        opcode, length = _OPLEN.unpack(head)
+            raise Damaged("a record is cut short")
+        opcode, length = OPLEN.unpack(head)
         if length > stop - pos - 9:
             what = "the chunk" if opcode == Opcode.CHUNK else "the record"
-            raise _Damaged(
+            raise Damaged(
                 f"{what} at byte {pos} claims {length:,} bytes, more than the file holds there "
                 f"({max(stop - pos - 9, 0):,})"
             )
@@ -116,56 +116,56 @@ def _records(f: IO[bytes], start: int, stop: int) -> Iterator[tuple[int, int, in
         pos += 9 + length
 
 
-_CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 
 
 #: What compressions a chunk may have, as MCAP names them.
 COMPRESSIONS = ("", "zstd", "lz4")
 
 
-def _read_chunk(body: bytes | memoryview, at: int) -> Chunk:
+def read_chunk(body: bytes | memoryview, at: int) -> Chunk:
     """mcap's :class:`~mcap.records.Chunk` of the body of the chunk record at byte ``at``, its
     ``data`` a view into ``body`` (``Chunk.read`` copies the data once more: a third of the read
     time here). Its records must fill what it holds of the record; uncompressed, they are as many
     bytes as it states."""
     where = f"the chunk at byte {at}"
-    if len(body) < _CHUNK_HEAD.size:
-        raise _Damaged(f"{where} is cut short ({len(body):,} bytes)")
-    start, end, size, crc, n = _CHUNK_HEAD.unpack_from(body)
-    head = _CHUNK_HEAD.size + n
+    if len(body) < CHUNK_HEAD.size:
+        raise Damaged(f"{where} is cut short ({len(body):,} bytes)")
+    start, end, size, crc, n = CHUNK_HEAD.unpack_from(body)
+    head = CHUNK_HEAD.size + n
     if head + 8 > len(body):
-        raise _Damaged(f"{where}: its compression name of {n:,} bytes runs past the chunk")
+        raise Damaged(f"{where}: its compression name of {n:,} bytes runs past the chunk")
     (length,) = struct.unpack_from("<Q", body, head)
     if head + 8 + length > len(body):
-        raise _Damaged(
+        raise Damaged(
             f"{where}: its records claim {length:,} bytes, past the chunk's end "
             f"({len(body) - head - 8:,} bytes there)"
         )
     try:
-        compression = bytes(body[_CHUNK_HEAD.size : head]).decode()
+        compression = bytes(body[CHUNK_HEAD.size : head]).decode()
     except UnicodeDecodeError as exc:
-        raise _Damaged(f"{where}: its compression name is not text") from exc
+        raise Damaged(f"{where}: its compression name is not text") from exc
     if compression not in COMPRESSIONS:
-        raise _Damaged(
+        raise Damaged(
             f"{where} is compressed with {compression[:40]!r}; MCAP chunks are read with lz4, "
             "zstd or none"
         )
     if compression == "" and length != size:
-        raise _Damaged(
+        raise Damaged(
             f"{where} states {size:,} bytes of records, its uncompressed records are {length:,}"
         )
     data = memoryview(body)[head + 8 : head + 8 + length]
     return Chunk(compression, data, end, start, crc, size)  # type: ignore[arg-type]
 
 
-def _chunk_bytes(chunk: Chunk, at: int) -> memoryview:
+def chunk_bytes(chunk: Chunk, at: int) -> memoryview:
     """The records of the chunk at byte ``at``, decompressed under the cap and checked against
     its size and CRC."""
     where = f"the chunk at byte {at}"
     size = chunk.uncompressed_size
     limit = max(MIN_ZSTD_BUDGET, MAX_ZSTD_RATIO * len(chunk.data))
     if size > limit:
-        raise _Damaged(
+        raise Damaged(
             f"{where} claims {size:,} bytes, more than {MAX_ZSTD_RATIO} times its "
             f"{len(chunk.data):,} compressed (a corrupt size, or a zstd bomb?)"
         )
@@ -178,26 +178,26 @@ def _chunk_bytes(chunk: Chunk, at: int) -> memoryview:
             dz = zstd.ZstdDecompressor()
             data = dz.decompress(chunk.data, max_length=size)
             if not dz.eof:
-                raise _Damaged(f"{short} (more, or its data is cut short)")
+                raise Damaged(f"{short} (more, or its data is cut short)")
         elif kind == "lz4":
             import lz4.frame  # type: ignore[import-untyped]
 
             dl = lz4.frame.LZ4FrameDecompressor()
             data = dl.decompress(chunk.data, max_length=size)
             if not dl.eof:
-                raise _Damaged(f"{short} (more, or its data is cut short)")
+                raise Damaged(f"{short} (more, or its data is cut short)")
         else:
-            raise _Damaged(
+            raise Damaged(
                 f"{where} is compressed with {kind!r}; MCAP chunks are read with lz4, zstd or none"
             )
     except (zstd.ZstdError, RuntimeError, ValueError, EOFError) as exc:  # lz4 raises RuntimeError
-        raise _Damaged(
-            f"{where}: its {kind} data cannot be decompressed ({_one_line(str(exc))})"
+        raise Damaged(
+            f"{where}: its {kind} data cannot be decompressed ({one_line(str(exc))})"
         ) from exc
     if len(data) != size:
-        raise _Damaged(f"{short} ({len(data):,})")
+        raise Damaged(f"{short} ({len(data):,})")
     if chunk.uncompressed_crc and crc32(data) != chunk.uncompressed_crc:
-        raise _Damaged(f"{where} fails its CRC check (corrupt data)")
+        raise Damaged(f"{where} fails its CRC check (corrupt data)")
     return memoryview(data)
 
 
@@ -209,35 +209,35 @@ def _split(
     for messages the body starts at the payload and the channel id is packed in the opcode's
     place as ``opcode | channel << 8``."""
     pos, n = 0, len(data)
-    oplen, head = _OPLEN.unpack_from, _MESSAGE_HEAD.unpack_from
+    oplen, head = OPLEN.unpack_from, MESSAGE_HEAD.unpack_from
     message = Opcode.MESSAGE
     while pos < n:
         if pos + 9 > n:
             where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
-            raise _Damaged(f"{where}: its last record is cut short")
+            raise Damaged(f"{where}: its last record is cut short")
         opcode, length = oplen(data, pos)
         body, end = pos + 9, pos + 9 + length
         if end > n:
             where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
-            raise _Damaged(
+            raise Damaged(
                 f"{where}: the record at byte {pos} of its {n:,} claims {length:,} bytes, past "
                 "their end"
             )
         if opcode == message:
-            if length < _MESSAGE_HEAD_SIZE:
+            if length < MESSAGE_HEAD_SIZE:
                 where = f"the chunk at byte {at}" if chunk else f"the records from byte {at}"
-                raise _Damaged(
+                raise Damaged(
                     f"{where}: the message record at byte {pos} of its {n:,} claims {length:,} "
                     "bytes, less than its header"
                 )
             channel, _, log_time = head(data, body)
-            yield message | channel << 8, body + _MESSAGE_HEAD_SIZE, end, log_time
+            yield message | channel << 8, body + MESSAGE_HEAD_SIZE, end, log_time
         else:
             yield opcode, body, end, -1
         pos = end
 
 
-def _in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int]) -> bool:
+def in_order(messages: list[tuple[int, int, memoryview]], rank: dict[int, int]) -> bool:
     """Whether the messages, in file order, are in the merge's order already: log time, then the
     rank of their connection (file order breaks the remaining ties)."""
     keys = [(t, rank[cid]) for cid, t, _ in messages]

@@ -9,11 +9,11 @@ from the scans before a damaged record). :class:`CheckedMcapReader` checks, befo
 parses the file, that every top-level record lies inside the file and every chunk's records
 inside its chunk record; that its chunk index names exactly the chunks there are, with their
 lengths, compressions and sizes; and reads each chunk itself when messages are asked for
-(:func:`~._mcap_layout._read_chunk`, the capped decompression and CRC of
-:func:`~._mcap_layout._chunk_bytes`, :func:`~._mcap_layout._split`): each record inside its
+(:func:`~._mcap_layout.read_chunk`, the capped decompression and CRC of
+:func:`~._mcap_layout.chunk_bytes`, :func:`~._mcap_layout._split`): each record inside its
 chunk. Messages come in rosbags' own order (the same merge of the same tuples), so outputs do
 not change. A file without a chunk index, which rosbags scans, has every chunk checked when it
-is opened. Damage is a :class:`~._mcap_layout._Damaged`, said in one line by ``open_bag``.
+is opened. Damage is a :class:`~._mcap_layout.Damaged`, said in one line by ``open_bag``.
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ from mcap.opcode import Opcode
 from rosbags.rosbag2.storage_mcap import ChunkInfo, McapReader, Msg
 
 from scan2terrain.readers._mcap_layout import (
-    _CHUNK_HEAD,
-    _OPLEN,
+    CHUNK_HEAD,
     MAGIC,
-    _chunk_bytes,
-    _Damaged,
-    _read_chunk,
+    OPLEN,
+    Damaged,
     _records,
     _split,
+    chunk_bytes,
+    read_chunk,
 )
 
 if TYPE_CHECKING:
@@ -68,7 +68,7 @@ class CheckedMcapReader(McapReader):
         if set(indexed) != set(heads):
             lost = sorted(set(heads) - set(indexed))
             stray = sorted(set(indexed) - set(heads))
-            raise _Damaged(
+            raise Damaged(
                 f"its chunk index does not match its chunks (chunks at byte {lost[:3]} not "
                 f"indexed, indexed chunks at byte {stray[:3]} not there)"
                 if lost and stray
@@ -91,13 +91,13 @@ class CheckedMcapReader(McapReader):
                 return {}
             f.seek(footer_at)
             tail = f.read(9 + 20 + 8)
-            if tail[:9] != _OPLEN.pack(Opcode.FOOTER, 20) or tail[-8:] != MAGIC:
+            if tail[:9] != OPLEN.pack(Opcode.FOOTER, 20) or tail[-8:] != MAGIC:
                 return {}
             heads = {}
             for at, opcode, length in _records(f, 8, footer_at):
                 if opcode != Opcode.CHUNK:
                     continue
-                head = f.read(min(length, _CHUNK_HEAD.size + 256))
+                head = f.read(min(length, CHUNK_HEAD.size + 256))
                 heads[at] = _head(at, length, head)
             return heads
 
@@ -109,23 +109,23 @@ class CheckedMcapReader(McapReader):
         self.bio.seek(at)
         head = self.bio.read(9)
         if len(head) < 9:
-            raise _Damaged(f"the chunk at byte {at} is past the end of the file")
-        opcode, length = _OPLEN.unpack(head)
+            raise Damaged(f"the chunk at byte {at} is past the end of the file")
+        opcode, length = OPLEN.unpack(head)
         if opcode != Opcode.CHUNK or (index is not None and 9 + length != index.chunk_length):
-            raise _Damaged(
+            raise Damaged(
                 f"the chunk index points at byte {at}, where there is a record of opcode "
                 f"{opcode} and {9 + length:,} bytes, not its chunk"
             )
         body = self.bio.read(length)
         if len(body) != length:
-            raise _Damaged(
+            raise Damaged(
                 f"the chunk at byte {at} claims {length:,} bytes, the file holds {len(body):,}"
             )
-        chunk = _read_chunk(body, at)
+        chunk = read_chunk(body, at)
         if index is not None:
             _agrees(at, _ChunkHead(length, chunk.compression, len(chunk.data),
                                    chunk.uncompressed_size), index)  # fmt: skip
-        return _chunk_bytes(chunk, at)
+        return chunk_bytes(chunk, at)
 
     def _source(
         self, chunk: ChunkInfo, channel_map: dict[int, Connection], start: int, stop: int
@@ -176,24 +176,24 @@ class CheckedMcapReader(McapReader):
 def _head(at: int, length: int, head: bytes) -> _ChunkHead:
     """A chunk record's head (``head``: its first bytes) checked against its ``length``."""
     where = f"the chunk at byte {at}"
-    if len(head) < _CHUNK_HEAD.size:
-        raise _Damaged(f"{where} is cut short ({length:,} bytes)")
-    _, _, size, _, n = _CHUNK_HEAD.unpack_from(head)
-    fixed = _CHUNK_HEAD.size + n + 8
+    if len(head) < CHUNK_HEAD.size:
+        raise Damaged(f"{where} is cut short ({length:,} bytes)")
+    _, _, size, _, n = CHUNK_HEAD.unpack_from(head)
+    fixed = CHUNK_HEAD.size + n + 8
     if fixed > length or fixed > len(head):
-        raise _Damaged(f"{where}: its compression name claims {n:,} bytes (a corrupt length)")
-    (compressed,) = struct.unpack_from("<Q", head, _CHUNK_HEAD.size + n)
+        raise Damaged(f"{where}: its compression name claims {n:,} bytes (a corrupt length)")
+    (compressed,) = struct.unpack_from("<Q", head, CHUNK_HEAD.size + n)
     if compressed > length - fixed:
-        raise _Damaged(
+        raise Damaged(
             f"{where}: its records claim {compressed:,} bytes, past the chunk's end "
             f"({length - fixed:,} bytes there)"
         )
     try:
-        compression = head[_CHUNK_HEAD.size : _CHUNK_HEAD.size + n].decode()
+        compression = head[CHUNK_HEAD.size : CHUNK_HEAD.size + n].decode()
     except UnicodeDecodeError:
-        raise _Damaged(f"{where}: its compression name is not text") from None
+        raise Damaged(f"{where}: its compression name is not text") from None
     if compression == "" and compressed != size:
-        raise _Damaged(
+        raise Damaged(
             f"{where} states {size:,} bytes of records, its uncompressed records are {compressed:,}"
         )
     return _ChunkHead(length, compression, compressed, size)
@@ -211,6 +211,6 @@ def _agrees(at: int, head: _ChunkHead, index: Any) -> None:
         if own != listed:
             said = f"{own:,}" if isinstance(own, int) else repr(own)
             other = f"{listed:,}" if isinstance(listed, int) else repr(listed)
-            raise _Damaged(
+            raise Damaged(
                 f"the chunk at byte {at} states a {name} of {said}, its chunk index {other}"
             )

@@ -71,7 +71,7 @@ def open_pixels(
     try:
         with path.open("rb") as f:
             magic = f.read(len(_PNG_SIGNATURE))
-            palette = _check_png(path, f) if magic == _PNG_SIGNATURE else None
+            palette = check_png(path, f) if magic == _PNG_SIGNATURE else None
         why = elevation_raster(path) if pictures_only and magic[:4] in _TIFF_MAGIC else None
         if why is not None:
             raise InputError(
@@ -217,7 +217,7 @@ def _check_ihdr(path: Path, data: bytes) -> int:
     return colour
 
 
-def _check_png(path: Path, f: BinaryIO) -> int | None:
+def check_png(path: Path, f: BinaryIO) -> int | None:
     """Every chunk of the PNG ``f`` (just past its signature) whole and matching its CRC, up to
     IEND, read 1 MiB at a time (zlib.crc32: about a millisecond a megabyte); its header and
     palette against PNG's rules. Returns the number of palette entries of a palette image, or

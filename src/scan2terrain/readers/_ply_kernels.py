@@ -1,4 +1,3 @@
-# ruff: noqa: PLR0917
 """Compiled walks over the rows of a PLY element whose rows vary in length (list properties),
 for :mod:`scan2terrain.readers.ply`: each row's place depends on the counts of the rows before
 it, so the loop is the algorithm.

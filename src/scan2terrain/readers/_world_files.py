@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers._files import raised_in, regular_file
+from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, _channels, check_png
 
 #: Largest file read (a world, model, mesh or image file).
 MAX_FILE_BYTES = 1 << 30
@@ -135,10 +136,8 @@ def heightmap_image(
     colour PNG is refused (Pillow would read 8 of its bits, Gazebo reads 16)."""
     from PIL import Image, UnidentifiedImageError
 
-    from scan2terrain.readers._pixels import DEFAULT_MAX_PIXELS, _channels, _check_png
-
     if data[:8] == _PNG_SIGNATURE:
-        _check_png(path, io.BytesIO(data[8:]))
+        check_png(path, io.BytesIO(data[8:]))
         if len(data) > 25 and data[24] == 16 and data[25] in (2, 4, 6):
             raise InputError(
                 path,

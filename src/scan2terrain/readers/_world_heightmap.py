@@ -127,7 +127,7 @@ def fill_heights(
     return heights.astype(np.float32)
 
 
-def heightmap(
+def heightmap(  # noqa: PLR0913 (the SDF element's fields, as gz-common takes them)
     first: NDArray[np.integer],
     colour: NDArray[np.integer],
     full: int,

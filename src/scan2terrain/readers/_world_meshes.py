@@ -29,6 +29,7 @@ import re
 import struct
 
 import numpy as np
+from lxml import etree
 from numpy.typing import NDArray
 
 from scan2terrain.readers._files import raised_in
@@ -140,7 +141,6 @@ def _trimesh(data: bytes, kind: str) -> Triangles:
 def _collada_meter(data: bytes) -> float:
     """COLLADA's ``<asset><unit meter>`` (1 without one), read with a parser that expands no
     entity and fetches nothing; a file declaring entities is refused before pycollada sees it."""
-    from lxml import etree
 
     if b"<!ENTITY" in data:
         raise MeshError("declares XML entities: refused (they could expand or read files)")

@@ -36,7 +36,6 @@ from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
-from decimal import Decimal, InvalidOperation
 from functools import lru_cache
 from pathlib import Path
 from types import TracebackType
@@ -50,21 +49,33 @@ from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import Stores, get_typestore
 
 from scan2terrain.errors import InputError, shown
-from scan2terrain.readers import foxglove
 from scan2terrain.readers._bag_errors import (
-    _culprit,
-    _explain,
-    _one_line,
-    _Ros1Reader,
+    Ros1Reader,
     _storage,
     _undecodable,
+    culprit,
+    explain,
+    one_line,
 )
-from scan2terrain.readers._bag_source import _Source, _source
+from scan2terrain.readers._bag_source import Source, _source
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._mcap import McapFile, mcap_profile
-from scan2terrain.readers._mcap_layout import _DAMAGED, _Damaged
+from scan2terrain.readers._mcap_layout import DAMAGED, Damaged
 from scan2terrain.readers._mcap_rosbags import CheckedMcapReader
 from scan2terrain.readers.carmen import CarmenFile, is_carmen_log, named_like_log
+from scan2terrain.readers.messages import (
+    LASER_SCAN,
+    MAP_TYPES,
+    OCCUPANCY_GRID,
+    ODOMETRY,
+    ODOMETRY_TYPES,
+    POINT_CLOUD2,
+    SCAN_TYPES,
+    TF_MESSAGE,
+    TF_MESSAGE_ROS1_OLD,
+    TF_TYPES,
+    resolve_time,
+)
 from scan2terrain.types import normalise_frame
 
 if TYPE_CHECKING:
@@ -90,25 +101,6 @@ __all__ = [
     "open_bag",
     "resolve_time",
 ]
-
-#: Message types the pipeline consumes (ROS 2 names; ROS1 bags report the same names).
-LASER_SCAN = "sensor_msgs/msg/LaserScan"
-POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
-OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
-ODOMETRY = "nav_msgs/msg/Odometry"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
-#: ROS1's pre-tf2 ``tf/tfMessage``: the same layout (``geometry_msgs/TransformStamped[]``).
-TF_MESSAGE_ROS1_OLD = "tf/msg/tfMessage"
-TF_TYPES = frozenset({TF_MESSAGE, TF_MESSAGE_ROS1_OLD, *foxglove.TF_TYPES})
-#: Scans: ROS's, and Foxglove's ``foxglove.LaserScan`` / ``foxglove.PointCloud`` in MCAP.
-SCAN_TYPES = frozenset({LASER_SCAN, POINT_CLOUD2, *foxglove.SCAN_TYPES})
-#: Occupancy grids: ``nav_msgs/OccupancyGrid``, and ``foxglove.Grid`` in MCAP.
-MAP_TYPES = frozenset({OCCUPANCY_GRID, foxglove.GRID})
-#: Poses of the robot base over time: odometry, and ``foxglove.PoseInFrame`` in MCAP.
-ODOMETRY_TYPES = frozenset({ODOMETRY, foxglove.POSE_IN_FRAME})
-
-#: Values at or above this many seconds are absolute UNIX times in :func:`resolve_time`.
-ABSOLUTE_TIME_S = 1e9
 
 
 class BagWarning(UserWarning):
@@ -218,7 +210,7 @@ class Container:
         return f"{self.kind}{profile}{detail}, read with {self.reader}"
 
 
-def _container(reader: _Reader, source: _Source) -> Container:
+def _container(reader: _Reader, source: Source) -> Container:
     if isinstance(reader, CarmenFile):
         return Container(
             "CARMEN log", None, "scan2terrain (text, line by line)", reader.encodings(),
@@ -262,7 +254,7 @@ class Bag:
         Topics whose messages cannot be deserialised, with the reason.
     """
 
-    def __init__(self, reader: _Reader, source: _Source, stack: ExitStack) -> None:
+    def __init__(self, reader: _Reader, source: Source, stack: ExitStack) -> None:
         self._reader = reader
         self.container = _container(reader, source)
         self._stack = stack
@@ -417,16 +409,16 @@ class Bag:
                 yield item
         except InputError:
             raise
-        except _Damaged as exc:
-            raise InputError(self._owner(conns), f"{_DAMAGED}: {exc}") from None
+        except Damaged as exc:
+            raise InputError(self._owner(conns), f"{DAMAGED}: {exc}") from None
         except Exception as exc:  # rosbags' backends raise many types mid-stream; name the file
-            problem = _explain(exc, reading=True, storage=self._storage)
+            problem = explain(exc, reading=True, storage=self._storage)
             raise InputError(self._owner(conns), problem) from exc
 
     def _owner(self, conns: list[Connection]) -> Path:
         """The file to name for an error: in a split set, the one holding these connections."""
         owner = conns[0].owner if conns else None
-        if isinstance(owner, _Ros1Reader):
+        if isinstance(owner, Ros1Reader):
             return self._given.get(str(owner.path), self.path)
         return self.path
 
@@ -473,7 +465,7 @@ class Bag:
                     self._owner([conn]),
                     f"message on {shown(conn.topic)} at {(t_ns - self.start_ns) / 1e9:.3f} s "
                     f"cannot be decoded as {conn.msgtype} "
-                    f"({_one_line(str(exc)) or type(exc).__name__})",
+                    f"({one_line(str(exc)) or type(exc).__name__})",
                 ) from exc
             yield conn.topic, int(t_ns), msg
 
@@ -571,7 +563,7 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
     stack = ExitStack()
     try:
         carmen = _carmen_log(path)
-        source = _Source((carmen,), (carmen,)) if carmen else _source(path, stack)
+        source = Source((carmen,), (carmen,)) if carmen else _source(path, stack)
         where = source.paths[0]
         reader: _Rosbags | McapFile | CarmenFile
         if carmen is not None:
@@ -582,14 +574,14 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
             try:
                 reader = _Rosbags(list(source.read), default_typestore=_default_typestore())
                 if not reader.is2:
-                    reader.readers = [_Ros1Reader(p) for p in source.read]
+                    reader.readers = [Ros1Reader(p) for p in source.read]
                 _check_mcap(reader)
                 reader.open()
-            except _Damaged as exc:
-                raise InputError(where, f"{_DAMAGED}: {exc}") from None
+            except Damaged as exc:
+                raise InputError(where, f"{DAMAGED}: {exc}") from None
             except Exception as exc:  # AssertionError, struct.error, apsw, mcap... name the file
-                problem = _explain(exc, storage=_storage(source.read[0]))
-                raise InputError(_culprit(source, where), problem) from exc
+                problem = explain(exc, storage=_storage(source.read[0]))
+                raise InputError(culprit(source, where), problem) from exc
         stack.callback(reader.close)
         if reader.message_count == 0:
             raise InputError(where, "the bag holds no messages")
@@ -599,7 +591,7 @@ def open_bag(path: Path | str | Sequence[Path | str]) -> Bag:
         raise
     readers = reader.readers if isinstance(reader, _Rosbags) else [reader]
     for r, p in zip(readers, source.paths, strict=True):
-        if isinstance(r, _Ros1Reader) and r.rebuilt_chunks:
+        if isinstance(r, Ros1Reader) and r.rebuilt_chunks:
             warnings.warn(
                 BagWarning(
                     f"{p}: the bag's index does not match its data (an old rosbag writer bug); "
@@ -639,40 +631,3 @@ def _carmen_log(path: Path | str | Sequence[Path | str]) -> Path | None:
     if logs and len(items) > 1:
         raise InputError(logs[0], "a CARMEN log is read alone: give one log, not several paths")
     return logs[0] if logs else None
-
-
-def resolve_time(value: str | float | None, bag: Bag) -> int | None:
-    """A user-given time as bag time in nanoseconds (None stays None: no bound).
-
-    Parameters
-    ----------
-    value : str, float or None
-        Seconds. ``>= 1e9`` is an absolute UNIX time; smaller values count from the bag's first
-        message (``"12.5"`` is 12.5 s into the bag).
-    bag : Bag
-        The bag the time refers to.
-
-    Returns
-    -------
-    int or None
-        Nanoseconds, clamped to ``[start_ns - 1, end_ns + 1]``: a bound before the bag admits
-        every message from its start, one after it every message to its end, and a range that
-        lies outside the bag is empty (see :meth:`Bag.require_messages`).
-
-    Raises
-    ------
-    InputError
-        Not a number.
-    """
-    if value is None:
-        return None
-    try:  # Decimal keeps "1663929585.503548227" exact, float would round it to ~200 ns
-        seconds = Decimal(value if isinstance(value, str) else repr(float(value)))
-    except (InvalidOperation, TypeError, ValueError):
-        raise InputError(None, f"time {value!r} is not a number of seconds") from None
-    if not seconds.is_finite():
-        raise InputError(None, f"time {value!r} is not a finite number of seconds")
-    ns = int((seconds * 1_000_000_000).to_integral_value())
-    if seconds < ABSOLUTE_TIME_S:
-        ns += bag.start_ns
-    return min(max(ns, bag.start_ns - 1), bag.end_ns + 1)

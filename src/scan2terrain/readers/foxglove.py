@@ -102,7 +102,7 @@ _COLOURS = frozenset({"red", "green", "blue", "alpha"})
 _OCCUPANCY_NAMES = ("occupancy", "data")
 #: The fields a height grid is read from, in this order (grid_map's layer is ``elevation``).
 ELEVATION_NAMES = ("elevation", "height", "z")
-_NS = 1_000_000_000
+NS = 1_000_000_000
 
 
 # --- the ROS-shaped objects ---------------------------------------------------------------------

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import re
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import InputError
+from scan2terrain.fileio import is_url, url_path
 from scan2terrain.readers._cloud_common import Decoded
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._las_layout import check_las_layout, is_panic, panic_error
@@ -194,16 +194,6 @@ class LasInfo:
     #: A LAZ file of variable-size chunks (COPC's): read from its start, never from a point
     #: within (:func:`iter_las` skips to one by reading up to it; lazrs's seek gets it wrong).
     variable_chunks: bool = False
-
-
-def is_url(name: Path | str) -> bool:
-    """``scheme://...`` (http, https, s3, file, ...), as opposed to a local path."""
-    return re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", str(name)) is not None
-
-
-def url_path(name: Path | str) -> Path:
-    """A path, or a URL as a path (its query and fragment dropped), for names and suffixes."""
-    return Path(re.split(r"[?#]", str(name), maxsplit=1)[0] if is_url(name) else name)
 
 
 def url_suffix(name: Path | str) -> str:

@@ -61,7 +61,8 @@ _PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "V
 RGB_FIELDS = ("rgb", "rgba")
 
 
-def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> Decoded:
+# PLR0915: the header's fields checked in the format's order.
+def read_pcd(path: Path, *, colours: bool = False, attributes: bool = False) -> Decoded:  # noqa: PLR0915
     """x, y, z of every point of a PCD file (non-finite ones kept), their colours and what was
     read (``"pcd binary"``); for :func:`~scan2terrain.readers.cloudfile.read_cloud`.
 
@@ -219,7 +220,7 @@ def _point(row: int) -> str:
     return f"point {row}"
 
 
-def _decoded(  # noqa: PLR0917 - one private call site per DATA kind
+def _decoded(
     points: NDArray[np.float64],
     packed: NDArray[Any] | None,
     rgb: str | None,
@@ -258,7 +259,7 @@ def _in_order(
     return merged
 
 
-def _open3d_decoded(  # noqa: PLR0917 - one private call site
+def _open3d_decoded(
     path: Path,
     source: Path,
     n: int,

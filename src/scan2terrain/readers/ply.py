@@ -302,7 +302,7 @@ def _walk_rows(path: Path, fmt: str, raw: bytes, start: int, elements: list[_Ele
     """Every row of every element inside the data, each list count of its type and >= 0, and
     the rows ending where the data does (but for white space), before RPly reads them: it reads
     rows past a wrong count as other rows, or keeps those it could not read uninitialised."""
-    from scan2terrain.readers import _ply_kernels  # numba: only for rows of varying length
+    from scan2terrain.readers import _ply_kernels
 
     data = np.frombuffer(raw, np.uint8)
     pos = start

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.types import Pose2D, Scan, Start
+from scan2terrain.types import Pose2D, Scan, StartPose
 
 #: Beyond this distance from the origin (metres) cloud files get a local origin (auto).
 FAR = 1000.0
@@ -29,11 +29,11 @@ def within_reach(
     return near
 
 
-def start_of(scan: Scan) -> Start:
+def start_of(scan: Scan) -> StartPose:
     """Where the robot was at its first posed scan: the sensor's position and heading."""
     x, y = float(scan.origin[0]), float(scan.origin[1])
     why = f"from the recorded start ({scan.topic} at {scan.stamp_ns / 1e9:.3f} s)"
-    return Start(Pose2D(x, y, scan.heading), why)
+    return StartPose(Pose2D(x, y, scan.heading), why)
 
 
 def local_origin(

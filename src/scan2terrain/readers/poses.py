@@ -58,7 +58,7 @@ Lookup = tuple[Bools, Floats, Floats]
 # --------------------------------------------------------------------------- quaternion helpers
 
 
-def _quaternions_to_matrices(q: Floats) -> Floats:
+def quaternions_to_matrices(q: Floats) -> Floats:
     """Unit quaternions (..., 4) xyzw -> rotation matrices (..., 3, 3), as Transform's formula."""
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     r = np.empty((*q.shape[:-1], 3, 3))
@@ -102,7 +102,7 @@ def matrices_to_quaternions(r: Floats) -> Floats:
     return q / np.linalg.norm(q, axis=1, keepdims=True)  # type: ignore[no-any-return]
 
 
-def _sign_continuous(q: Floats) -> Floats:
+def sign_continuous(q: Floats) -> Floats:
     """Flip signs so that consecutive quaternions (M, 4) have a non-negative dot product."""
     if len(q) < 2:
         return q
@@ -135,7 +135,7 @@ def _compose(r_a: Floats, p_a: Floats, r_b: Floats, p_b: Floats) -> tuple[Floats
     return r_a @ r_b, np.einsum("...ij,...j->...i", r_a, p_b) + p_a
 
 
-def _check_max_gap(max_gap_ns: int | None) -> int | None:
+def check_max_gap(max_gap_ns: int | None) -> int | None:
     if max_gap_ns is None:
         return None
     if isinstance(max_gap_ns, bool) or not isinstance(max_gap_ns, (int, np.integer)):

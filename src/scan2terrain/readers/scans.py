@@ -34,27 +34,21 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import ScansConfig
 from scan2terrain.errors import InputError
-from scan2terrain.readers.bag import (
-    MAP_TYPES,
-    ODOMETRY_TYPES,
-    TF_TYPES,
-    Bag,
-    resolve_time,
-)
-from scan2terrain.readers.bag import SCAN_TYPES as _SCAN_TYPES
 from scan2terrain.readers.foxglove import LASER_SCAN as FOXGLOVE_LASER_SCAN
 from scan2terrain.readers.foxglove import Grid as FoxgloveGrid
 from scan2terrain.readers.foxglove import LaserScan as FoxgloveLaserScan
 from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
 from scan2terrain.readers.laserscan import laserscan_points
 from scan2terrain.readers.mapserver import extent_problem
+from scan2terrain.readers.messages import MAP_TYPES, ODOMETRY_TYPES, TF_TYPES, resolve_time
+from scan2terrain.readers.messages import SCAN_TYPES as _SCAN_TYPES
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import matrices_to_quaternions, pose6
 from scan2terrain.readers.tf import TfBuffer
@@ -68,6 +62,9 @@ from scan2terrain.types import (
     Transform,
     normalise_frame,
 )
+
+if TYPE_CHECKING:
+    from scan2terrain.readers.bag import Bag
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
 BATCH = 64

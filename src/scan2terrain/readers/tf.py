@@ -40,9 +40,9 @@ from scan2terrain.readers.poses import (
     Floats,
     Ints,
     Lookup,
-    _check_max_gap,
     _compose,
-    _quaternions_to_matrices,
+    check_max_gap,
+    quaternions_to_matrices,
 )
 from scan2terrain.readers.tracks import PoseTrack
 from scan2terrain.types import Transform, normalise_frame
@@ -165,7 +165,7 @@ class TfBuffer:
     """
 
     def __init__(self, max_gap_ns: int | None = DEFAULT_MAX_GAP_NS) -> None:
-        self.max_gap_ns = _check_max_gap(max_gap_ns)
+        self.max_gap_ns = check_max_gap(max_gap_ns)
         self._edges: dict[str, _Edge] = {}  # child -> edge from its parent
         # (child, refused parent, static) -> samples refused, and why
         self._conflicts: dict[tuple[str, str, bool], int] = {}
@@ -431,7 +431,7 @@ class TfBuffer:
             else:
                 ok, q_e, p_e = self._track(child)._interpolate(t)
                 valid &= ok
-                r_e = _quaternions_to_matrices(q_e)
+                r_e = quaternions_to_matrices(q_e)
             r, p = _compose(r_e, p_e, r, p)
         return valid, r, p
 

@@ -47,10 +47,10 @@ from scan2terrain.readers.poses import (
     Floats,
     Ints,
     Lookup,
-    _check_max_gap,
-    _quaternions_to_matrices,
-    _sign_continuous,
     _slerp,
+    check_max_gap,
+    quaternions_to_matrices,
+    sign_continuous,
 )
 from scan2terrain.types import Transform, normalise_frame
 
@@ -168,10 +168,10 @@ class PoseTrack:
         q = q[order] / norms[order, None]
         self.times_ns = t[keep]
         self.translations = p[order]
-        self.quaternions_xyzw = _sign_continuous(q)
+        self.quaternions_xyzw = sign_continuous(q)
         for a in (self.times_ns, self.translations, self.quaternions_xyzw):
             a.setflags(write=False)
-        self.max_gap_ns = _check_max_gap(max_gap_ns)
+        self.max_gap_ns = check_max_gap(max_gap_ns)
         self.frame_id = normalise_frame(frame_id)
         self.child_frame_id = normalise_frame(child_frame_id)
 
@@ -239,7 +239,7 @@ class PoseTrack:
             Position of the child frame in the parent frame, metres; NaN where not valid.
         """
         valid, q, p = self._interpolate(times_ns)
-        r = _quaternions_to_matrices(q)
+        r = quaternions_to_matrices(q)
         r[~valid] = np.nan
         p[~valid] = np.nan
         return valid, r, p

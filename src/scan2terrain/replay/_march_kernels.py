@@ -8,7 +8,7 @@ from scan2terrain._numba import numba as nb
 
 
 @nb.njit(cache=True, nogil=True)
-def first_hits(  # noqa: PLR0917 (a numba kernel: positional arrays)
+def first_hits(
     occupied: np.ndarray,  # bool (H, W)
     ox: np.ndarray,  # float64 (N,) beam origins, cells
     oy: np.ndarray,

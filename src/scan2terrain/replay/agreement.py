@@ -16,8 +16,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from scan2terrain.replay._march_kernels import first_hits
-
 PARTS = 5
 WITHIN = 0.1  #: metres
 #: Beams marched at most (a fixed sample: every n-th beam of every scan).
@@ -29,6 +27,8 @@ def agreement(
 ) -> tuple[float, int]:
     """(share of the counted beams within WITHIN, beams counted) for scans (points (N, 2) in
     each scan's own frame) at ``poses`` (K, 3: x, y, yaw)."""
+    from scan2terrain.replay._march_kernels import first_hits
+
     k = len(poses)
     sizes = np.array([len(s) for s in scans])
     if k < PARTS or sizes.sum() == 0:

@@ -16,9 +16,7 @@ from scan2terrain._numba import numba as nb
 
 
 @nb.njit(cache=True, nogil=True)
-def _score(  # noqa: PLR0917 (a numba kernel)
-    grid: np.ndarray, cx: np.ndarray, cy: np.ndarray, ox: int, oy: int, width: int
-) -> float:
+def _score(grid: np.ndarray, cx: np.ndarray, cy: np.ndarray, ox: int, oy: int, width: int) -> float:
     """Mean of ``grid`` at the points moved by (ox, oy). ``grid`` holds maxima over
     ``width`` x ``width`` cells from each cell: a square that starts below the grid but
     reaches into it is bounded by the first cell's (a square from there covers it)."""

@@ -51,8 +51,9 @@ EXTRA_ABOUT = {
 
 
 @dataclass(frozen=True)
-class WorldOutput:
-    """One simulator's world inside the output folder.
+class WrittenWorld:
+    """One simulator's world as written in the output folder (a :class:`SimWorld`, computed,
+    once it is on disk), for the report.
 
     ``map_yaml`` is the map_server YAML lined up with this world (None when no map was written,
     or when the map was written as tiles: then ``map_tiles`` lists one YAML per tile, row by row
@@ -74,7 +75,7 @@ class Result:
     """What a command wrote, for the CLI to report."""
 
     out: Path = Path()  #: the folder written (set by :func:`write_world_folder`)
-    worlds: list[WorldOutput] = field(default_factory=list)
+    worlds: list[WrittenWorld] = field(default_factory=list)
     heightmap_side: int = 0
     resolution: float = 0.0
     size_z: float = 0.0
@@ -201,10 +202,10 @@ def _world_output(
     models: Path,
     yamls: tuple[Path, ...],
     spawn: tuple[float, float, float, float, float, float],
-) -> WorldOutput:
+) -> WrittenWorld:
     if len(yamls) == 1:
-        return WorldOutput(p, world, models, yamls[0], spawn=spawn)
-    return WorldOutput(p, world, models, None, yamls, spawn=spawn)
+        return WrittenWorld(p, world, models, yamls[0], spawn=spawn)
+    return WrittenWorld(p, world, models, None, yamls, spawn=spawn)
 
 
 def spawn_pose(

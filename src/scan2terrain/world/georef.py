@@ -6,6 +6,7 @@ heading of each world's origin for ``<spherical_coordinates>``."""
 from __future__ import annotations
 
 from scan2terrain.config import Config
+from scan2terrain.readers.crs import crs_name, earth_anchor, parse_crs
 from scan2terrain.types import EarthAnchor
 
 
@@ -29,7 +30,6 @@ def georeference(
     line += ")" if offset == (0.0, 0.0) and z_offset == 0.0 else ", and this world's offset)"
     if crs is None:
         return line + "; no CRS known (scans.crs).\n", None
-    from scan2terrain.readers.crs import crs_name, earth_anchor, parse_crs
 
     parsed = parse_crs(crs)
     anchor = earth_anchor(parsed, ox, oy, oz)

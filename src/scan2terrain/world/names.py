@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 
 from scan2terrain.config import Config
-from scan2terrain.exporters._numbers import decimal_text
 from scan2terrain.exporters.heightmap import Heightmap
 from scan2terrain.exporters.tiles import Terrain
 
@@ -45,12 +44,3 @@ def unique_name(source: Path, content: bytes, cfg: Config) -> str:
         return cfg.world.model_name
     stem = re.sub(r"[^A-Za-z0-9]+", "_", source.stem).strip("_").lower() or "terrain"
     return f"{stem}_{hashlib.sha256(content).hexdigest()[:8]}"
-
-
-def minus(name: str, v: float) -> str:
-    """``name`` minus ``v``, written for a human: 'x - 29.125', 'x + 0.125', or 'x' for 0;
-    ``v`` rounded to the nanometre (28.95, not 28.950000000000003)."""
-    text = decimal_text(abs(v), 9)
-    if text == "0":
-        return name
-    return f"{name} - {text}" if v > 0 else f"{name} + {text}"

@@ -9,14 +9,14 @@ from numpy.typing import NDArray
 from scan2terrain.exporters.heightmap import Heightmap
 from scan2terrain.exporters.tiles import Terrain
 from scan2terrain.grids.spawn import Around, find_spawn
-from scan2terrain.types import Pose2D, Spawn, Start
+from scan2terrain.types import Pose2D, Spawn, StartPose
 
 
 def spawn_for(
     heights: NDArray[np.floating],
     resolution: float,
     origin: Pose2D,
-    start: Start | None,
+    start: StartPose | None,
     *,
     ground: NDArray[np.bool_] | None = None,
     free: NDArray[np.bool_] | None = None,

@@ -13,12 +13,13 @@ from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ, Heightmap
 from scan2terrain.exporters.tiles import Terrain, TiledHeightmap, TileSpec
 from scan2terrain.grids.spawn import FOOTPRINT
+from scan2terrain.texts import minus
 from scan2terrain.types import (
     OccupancyGrid,
     Spawn,
 )
 from scan2terrain.world.folder import Result, WorldFolder, map_notes, sim_world
-from scan2terrain.world.names import minus, model_name_for, terrain_name
+from scan2terrain.world.names import model_name_for, terrain_name
 from scan2terrain.world.preview import Preview
 
 

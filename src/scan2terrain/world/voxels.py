@@ -37,11 +37,16 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import InputError
-from scan2terrain.exporters import sdf
+from scan2terrain.exporters import meshfile, sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.exporters.preview import preview_png
+from scan2terrain.filters.voxels3d import remove_small_components
+from scan2terrain.geometry.voxel_mesh import TooManyChunks, TooManyTriangles, mesh_voxels
+from scan2terrain.grids.occupied import occupied_voxels
+from scan2terrain.grids.projection import column_stats, project_occupancy
 from scan2terrain.grids.spawn import Around
 from scan2terrain.octree.keys import KEY_OFFSET
-from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, Start
+from scan2terrain.types import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, StartPose
 from scan2terrain.world.folder import (
     Result,
     WorldFolder,
@@ -73,25 +78,20 @@ SCAN_PLANE_SPAN = FLOOR_BAND
 MAX_MESH_VOXELS = 4_000_000
 
 
-def voxel_mesh_folder(
+def voxel_mesh_folder(  # noqa: PLR0915 (to split: voxels, meshes, ground, map and spawn, report)
     keys: NDArray[np.uint16],
     occupied: NDArray[np.bool_],
     resolution: float,
     *,
     source: Path,
     cfg: Config,
-    start: Start | None = None,
+    start: StartPose | None = None,
     runs: NDArray[np.uint16] | None = None,
     colours: VoxelColours | None = None,
 ) -> WorldFolder:
     """Known voxels (OctoMap keys, occupied or free; ``runs`` as in grids.projection) to a world
     whose geometry is the occupied voxels in the z band (see the module docstring); with
     ``colours`` (the points' mean colour per voxel) the visuals carry them."""
-    from scan2terrain.exporters import meshfile
-    from scan2terrain.exporters.preview import preview_png
-    from scan2terrain.geometry.voxel_mesh import TooManyChunks, TooManyTriangles, mesh_voxels
-    from scan2terrain.grids.occupied import occupied_voxels
-    from scan2terrain.grids.projection import column_stats, project_occupancy
 
     o, w = cfg.octree, cfg.world
     solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
@@ -118,8 +118,6 @@ def voxel_mesh_folder(
         lattice, resolution, rgb = _coarser(lattice, resolution, w.voxel_size, source, rgb)
     kept = len(lattice)
     if w.min_voxels > 1:
-        from scan2terrain.filters.voxels3d import remove_small_components
-
         keep = remove_small_components(lattice, w.min_voxels)
         lattice = lattice[keep]
         rgb = None if rgb is None else rgb[keep]

@@ -14,12 +14,15 @@ from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.errors import InputError
-from scan2terrain.exporters import sdf
+from scan2terrain.exporters import meshfile, sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.exporters.meshfile import dae_bytes
+from scan2terrain.geometry import outlines
+from scan2terrain.geometry.boxes import merge_boxes
 from scan2terrain.geometry.faces import faces_at_hits
-from scan2terrain.grids import (
-    axis_align,
-)
+from scan2terrain.geometry.mesh import boxes_mesh, extrude
+from scan2terrain.geometry.simplify import simplify
+from scan2terrain.grids import axis_align
 from scan2terrain.grids.spawn import Around
 from scan2terrain.types import (
     FREE,
@@ -27,7 +30,7 @@ from scan2terrain.types import (
     UNKNOWN,
     OccupancyGrid,
     Pose2D,
-    Start,
+    StartPose,
 )
 from scan2terrain.world.folder import (
     Result,
@@ -55,7 +58,7 @@ def walls_folder(
     cfg: Config,
     *,
     preview: Preview,
-    start: Start | None = None,
+    start: StartPose | None = None,
 ) -> WorldFolder:
     """A filtered trinary grid to a world of walls (``world.geometry``: mesh, boxes, polylines).
 
@@ -135,10 +138,6 @@ def _walls(
 ) -> _Walls:
     kind = cfg.world.geometry
     if kind == "boxes":
-        from scan2terrain.exporters.meshfile import dae_bytes
-        from scan2terrain.geometry.boxes import merge_boxes
-        from scan2terrain.geometry.mesh import boxes_mesh
-
         cells = merge_boxes(walls)
         boxes = _box_poses(cells, resolution, origin)
         visual = boxes_mesh(boxes, cfg.terrain.height)
@@ -148,8 +147,6 @@ def _walls(
             f"{len(cells)} boxes (the fewest that cover the wall cells exactly) in one model,"
             f" one mesh visual of them ({sdf.MESH_DIR}/{sdf.MESH_STEM}.dae)",
         )
-    from scan2terrain.geometry import outlines
-    from scan2terrain.geometry.simplify import simplify
 
     polygons = outlines.trace(walls, resolution, origin)
     simplified = ""
@@ -178,8 +175,6 @@ def _walls(
             {},
             f"{outline}, one <polyline> geometry each (holes as extra <polyline> elements)",
         )
-    from scan2terrain.exporters import meshfile
-    from scan2terrain.geometry.mesh import extrude
 
     mesh = extrude(polygons, cfg.terrain.height)
     stem = f"{sdf.MESH_DIR}/{sdf.MESH_STEM}"
