@@ -246,9 +246,9 @@ def geometry_options(o: Options, *, voxels: bool = True) -> None:
         "fastest in physics), the fewest boxes that cover them, SDF polylines, or a heightmap "
         "(slowest; 1-cell walls are knife edges); auto: mesh for occupancy grids, "
         "heightmap for height grids; "
-        "voxels (commands that read scans into an octree): the occupied voxels themselves in "
-        "3D, overhangs and doorways kept; map frame = world frame in both simulators for all "
-        "but heightmap (README: which geometry to pick)",
+        + ("voxels: the occupied voxels themselves in 3D, overhangs and doorways kept; " * voxels)
+        + "map frame = world frame in both simulators for all but heightmap (README: which "
+        "geometry to pick)",
     )
     g.add(
         "--simplify",
