@@ -352,7 +352,13 @@ def test_a_run_stopped_while_writing_says_so_and_leaves_nothing(
 
     monkeypatch.setattr("scan2terrain.exporters.sdf.tiled_world_sdf", stop_here)
     before = signal.getsignal(signal.SIGTERM)
-    code = main(["map2world", str(good), "-o", str(out)])
+    # Run under nohup (SIGHUP ignored), scan2terrain keeps going on a closed terminal, as asked:
+    # the test's own process must not ignore it.
+    hup = signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    try:
+        code = main(["map2world", str(good), "-o", str(out)])
+    finally:
+        signal.signal(signal.SIGHUP, hup)
     err = capsys.readouterr().err
     assert code == 128 + getattr(signal, signame), err
     assert err.startswith(f"scan2terrain: interrupted ({signame})") and err.count("\n") == 1
