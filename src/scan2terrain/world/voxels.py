@@ -41,7 +41,12 @@ from scan2terrain.exporters import meshfile, sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.exporters.preview import preview_png
 from scan2terrain.filters.voxels3d import remove_small_components
-from scan2terrain.geometry.voxel_mesh import TooManyChunks, TooManyTriangles, mesh_voxels
+from scan2terrain.geometry.voxel_mesh import (
+    TooManyChunks,
+    TooManyTriangles,
+    VoxelChunk,
+    mesh_voxels,
+)
 from scan2terrain.grids.occupied import occupied_voxels
 from scan2terrain.grids.projection import column_stats, project_occupancy
 from scan2terrain.grids.spawn import Around
@@ -78,7 +83,7 @@ SCAN_PLANE_SPAN = FLOOR_BAND
 MAX_MESH_VOXELS = 4_000_000
 
 
-def voxel_mesh_folder(  # noqa: PLR0915 (to split: voxels, meshes, ground, map and spawn, report)
+def voxel_mesh_folder(
     keys: NDArray[np.uint16],
     occupied: NDArray[np.bool_],
     resolution: float,
@@ -94,64 +99,17 @@ def voxel_mesh_folder(  # noqa: PLR0915 (to split: voxels, meshes, ground, map a
     ``colours`` (the points' mean colour per voxel) the visuals carry them."""
 
     o, w = cfg.octree, cfg.world
-    solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
-    if len(solid) == 0:
-        raise InputError(source, "the octree holds no occupied voxel: nothing to make a world of")
-    plane = scan_plane(keys, occupied, runs, resolution)
-    if plane is not None:  # its z extent in metres (the resolution may be coarsened below)
-        plane_z = ((np.array(plane) - KEY_OFFSET + [0, 1]) * resolution).tolist()
     z_min, z_max = o.z_band
-    centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
-    solid = solid[(centre_z >= z_min) & (centre_z <= z_max)]
-    if len(solid) == 0:
-        raise InputError(source, "no occupied voxel in the z band: nothing to make a world of")
-    if len(solid) > MAX_MESH_VOXELS:
-        raise InputError(
-            source,
-            f"{len(solid)} occupied voxels in the z band, more than the {MAX_MESH_VOXELS} that"
-            " --geometry voxels meshes: choose a coarser --resolution or a narrower"
-            " --z-min/--z-max band",
-        )
-    rgb = None if colours is None else colours.mean(solid)
-    lattice = solid.astype(np.int64) - KEY_OFFSET
-    if w.voxel_size is not None:
-        lattice, resolution, rgb = _coarser(lattice, resolution, w.voxel_size, source, rgb)
-    kept = len(lattice)
-    if w.min_voxels > 1:
-        keep = remove_small_components(lattice, w.min_voxels)
-        lattice = lattice[keep]
-        rgb = None if rgb is None else rgb[keep]
-        if len(lattice) == 0:
-            raise InputError(
-                source, f"every occupied voxel is in a component under world.min_voxels"
-                f" {w.min_voxels}: nothing is left"
-            )  # fmt: skip
-    left_out = kept - len(lattice)
-    if plane is not None:
-        lattice, rgb = _extrude(lattice, rgb, cfg.terrain.height, resolution, source)
+    key_side = resolution  # the octree's (the voxels may be coarsened)
+    lattice, resolution, rgb, left_out, plane = _solid_lattice(
+        keys, occupied, runs, resolution, source=source, cfg=cfg, colours=colours
+    )
+    plane_z = [] if plane is None else ((np.array(plane) - KEY_OFFSET + [0, 1]) * key_side).tolist()
     cells = max(1, round(w.chunk / resolution))
     palette = labels = None
     if rgb is not None:
         palette, labels = meshfile.quantise_colours(rgb, MAX_COLOURS)
-    try:
-        chunks = mesh_voxels(
-            lattice, resolution, chunk_cells=cells, labels=labels,
-            max_triangles=w.max_triangles, max_chunks=MAX_CHUNKS,
-        )  # fmt: skip
-    except TooManyChunks as exc:
-        raise InputError(
-            source,
-            f"--chunk {w.chunk:g} m cuts the voxels into {exc.count} chunks, more than"
-            f" {MAX_CHUNKS} (three mesh files and two SDF elements each): choose a larger"
-            " --chunk",
-        ) from exc
-    except TooManyTriangles as exc:
-        raise InputError(
-            source,
-            f"the voxel meshes would hold {exc.count} triangles, over world.max_triangles"
-            f" {exc.limit}: raise it (--max-triangles), choose a coarser --resolution or a"
-            " narrower --z-min/--z-max band",
-        ) from exc
+    chunks = _chunks(lattice, resolution, cells, labels, w.chunk, w.max_triangles, source)
     # The ground: a slab under the lowest voxels, over the voxels' extent.
     lo = lattice.min(axis=0) * resolution
     hi = (lattice.max(axis=0) + 1) * resolution
@@ -254,6 +212,88 @@ def voxel_mesh_folder(  # noqa: PLR0915 (to split: voxels, meshes, ground, map a
     preview = Preview(preview_png(map_out.data, None, occupancy=True), result.preview_label)
     # The projection is in world axes already (yaw 0, on voxel boundaries).
     return WorldFolder(source, result, parts, map_out, preview, {}, cfg)
+
+
+def _solid_lattice(
+    keys: NDArray[np.uint16],
+    occupied: NDArray[np.bool_],
+    runs: NDArray[np.uint16] | None,
+    resolution: float,
+    *,
+    source: Path,
+    cfg: Config,
+    colours: VoxelColours | None,
+) -> tuple[NDArray[np.int64], float, NDArray[np.uint8] | None, int, tuple[int, int] | None]:
+    """The occupied voxels to mesh, as a lattice (keys less KEY_OFFSET): those in the z band,
+    coarsened to ``world.voxel_size``, small components left out, a scan plane extruded; with
+    the voxel side, their colours, how many were left out and the scan plane (keys) or None."""
+    o, w = cfg.octree, cfg.world
+    solid = occupied_voxels(keys, occupied, runs, source, why="world.geometry voxels")
+    if len(solid) == 0:
+        raise InputError(source, "the octree holds no occupied voxel: nothing to make a world of")
+    plane = scan_plane(keys, occupied, runs, resolution)
+    z_min, z_max = o.z_band
+    centre_z = (solid[:, 2].astype(np.float64) - KEY_OFFSET + 0.5) * resolution
+    solid = solid[(centre_z >= z_min) & (centre_z <= z_max)]
+    if len(solid) == 0:
+        raise InputError(source, "no occupied voxel in the z band: nothing to make a world of")
+    if len(solid) > MAX_MESH_VOXELS:
+        raise InputError(
+            source,
+            f"{len(solid)} occupied voxels in the z band, more than the {MAX_MESH_VOXELS} that"
+            " --geometry voxels meshes: choose a coarser --resolution or a narrower"
+            " --z-min/--z-max band",
+        )
+    rgb = None if colours is None else colours.mean(solid)
+    lattice = solid.astype(np.int64) - KEY_OFFSET
+    if w.voxel_size is not None:
+        lattice, resolution, rgb = _coarser(lattice, resolution, w.voxel_size, source, rgb)
+    kept = len(lattice)
+    if w.min_voxels > 1:
+        keep = remove_small_components(lattice, w.min_voxels)
+        lattice = lattice[keep]
+        rgb = None if rgb is None else rgb[keep]
+        if len(lattice) == 0:
+            raise InputError(
+                source, f"every occupied voxel is in a component under world.min_voxels"
+                f" {w.min_voxels}: nothing is left"
+            )  # fmt: skip
+    left_out = kept - len(lattice)
+    if plane is not None:
+        lattice, rgb = _extrude(lattice, rgb, cfg.terrain.height, resolution, source)
+    return lattice, resolution, rgb, left_out, plane
+
+
+def _chunks(
+    lattice: NDArray[np.int64],
+    resolution: float,
+    cells: int,
+    labels: NDArray[np.integer] | None,
+    chunk: float,
+    max_triangles: int,
+    source: Path,
+) -> list[VoxelChunk]:
+    """The lattice meshed in chunks of ``cells`` voxels a side; too many chunks or triangles
+    refused in the words of the options that change them."""
+    try:
+        return mesh_voxels(
+            lattice, resolution, chunk_cells=cells, labels=labels,
+            max_triangles=max_triangles, max_chunks=MAX_CHUNKS,
+        )  # fmt: skip
+    except TooManyChunks as exc:
+        raise InputError(
+            source,
+            f"--chunk {chunk:g} m cuts the voxels into {exc.count} chunks, more than"
+            f" {MAX_CHUNKS} (three mesh files and two SDF elements each): choose a larger"
+            " --chunk",
+        ) from exc
+    except TooManyTriangles as exc:
+        raise InputError(
+            source,
+            f"the voxel meshes would hold {exc.count} triangles, over world.max_triangles"
+            f" {exc.limit}: raise it (--max-triangles), choose a coarser --resolution or a"
+            " narrower --z-min/--z-max band",
+        ) from exc
 
 
 def _slab_around(grid: OccupancyGrid, ground: sdf.Ground) -> tuple[NDArray[np.bool_], Around]:
