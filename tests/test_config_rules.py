@@ -119,6 +119,13 @@ def test_values_are_converted_by_the_declared_type(key: str, value: object, got:
         ("scans.las_classes", "2", "'scans.las_classes' has the wrong type"),
         ("scans.las_classes", [2.5], "'scans.las_classes' has the wrong type"),
         ("image.origin", [1, "x"], "'image.origin' has the wrong type"),
+        ("image.origin", 5, "'image.origin' has the wrong type (5; expected list[float] | null)"),
+        (
+            "scans.local_origin",
+            [1, 2, "a"],
+            "'scans.local_origin' has the wrong type ([1, 2, 'a']; expected 'auto' | 'none' |"
+            " list[float])",
+        ),
         ("scans.fixed_frame", ["map"], "'scans.fixed_frame' has the wrong type"),
         ("terrain.height", math.inf, "'terrain.height' = inf is invalid: must be a finite"),
     ],

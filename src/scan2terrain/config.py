@@ -677,8 +677,18 @@ def _coerce(value: Any, hint: Any, where: str, source: str) -> Any:
         except (TypeError, ValueError, OverflowError) as exc:
             if isinstance(exc, ConfigError):
                 raise
-    text = " | ".join(getattr(k, "__name__", str(k)) for k in kinds)
+    text = " | ".join(_kind_text(k) for k in kinds)
     raise ConfigError(f"{source}: '{where}' has the wrong type ({value!r:.60}; expected {text})")
+
+
+def _kind_text(kind: Any) -> str:
+    """A field's type as a YAML author reads it: ``int``, ``list[float]``, ``null``, the words of
+    a vocabulary (``'auto' | 'none'``)."""
+    if kind is type(None):
+        return "null"
+    if get_origin(kind) is Literal:
+        return " | ".join(repr(v) for v in get_args(kind))
+    return str(kind) if get_origin(kind) is not None else str(kind.__name__)
 
 
 def _as(value: Any, kind: Any, where: str, source: str) -> Any:
