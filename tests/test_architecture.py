@@ -3,7 +3,8 @@
 a stage never imports a later one (readers -> slam -> octree -> grids -> filters -> geometry ->
 replay -> exporters), the shared modules (types, errors, config, fileio, texts, _numba) import
 no stage and no composer, and every module is in one layer: shared, a stage, or a composer (world/,
-steps.py and checks.py below commands/, below cli/)."""
+steps.py and checks.py below commands/, below cli/ and api.py, the Python API; the package's
+__init__ on top, re-exporting the API, imported by no module)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
 STAGES = ["readers", "slam", "octree", "grids", "filters", "geometry", "replay", "exporters"]
-COMPOSERS = {"commands", "cli", "steps", "world", "checks", "warmup"}
+COMPOSERS = {"commands", "cli", "api", "steps", "world", "checks", "warmup"}
 SHARED = {"types", "errors", "config", "fileio", "texts", "_numba"}
 #: Composers, lowest first: each imports only shared modules, stages and lower composers.
-LAYERS = [{"world"}, {"steps", "checks"}, {"commands"}, {"cli", "warmup", "__main__"}]
+LAYERS = [
+    {"world"},
+    {"steps", "checks"},
+    {"commands"},
+    {"cli", "api", "warmup", "__main__"},
+    {"package"},  # scan2terrain/__init__.py: the API, re-exported
+]
 
 
 def module_name(path: Path) -> str:
@@ -84,12 +91,11 @@ def test_stages_import_only_earlier_stages() -> None:
 
 
 def layer_of(module: str) -> str:
-    """'shared', a stage's name, or the composer's top-level name ('' for the package)."""
+    """'shared', a stage's name, the composer's top-level name, or 'package'."""
     parts = module.split(".")
-    top = parts[1] if len(parts) > 1 else ""
-    if top in SHARED or top == "":
-        return "shared"
-    return top
+    if len(parts) == 1:
+        return "package"
+    return "shared" if parts[1] in SHARED else parts[1]
 
 
 def test_every_module_has_a_layer_and_imports_only_below_it() -> None:

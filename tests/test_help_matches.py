@@ -63,7 +63,7 @@ def run_config(command: str, tmp: Path, monkeypatch: pytest.MonkeyPatch) -> Conf
     """The config ``scan2terrain COMMAND ...`` hands its run function when no option is given."""
     seen: list[Config] = []
 
-    def keep(args: argparse.Namespace, cfg: Config) -> str:
+    def keep(args: argparse.Namespace, cfg: Config, *_: object) -> str:
         seen.append(cfg)
         return ""
 

@@ -1,4 +1,6 @@
-"""Command line: parse arguments, build the config, call the pipeline, map errors to exit codes.
+"""Command line: parse arguments, run the command through the Python API's one path
+(``scan2terrain.api.run``: the config, the command, its Result), print its report, map errors to
+exit codes.
 
 Exit codes: 0 success, 1 unexpected failure, 2 bad input or usage (one line on stderr).
 Heavy modules (numpy, Pillow, lxml) are imported only once a command runs, so ``--help`` is fast.
@@ -16,12 +18,13 @@ import traceback
 import warnings
 from typing import Any
 
-from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS, load
-from scan2terrain.cli.display import report
-from scan2terrain.cli.parser import build_parser, flags_of, name_flags
-from scan2terrain.config import TOP_LEVEL_KEYS, load_config
+# The module, not its names: scan2terrain.api imports this package's modules, and either may
+# be imported first.
+from scan2terrain import api
+from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS, Progress, load, show_progress
+from scan2terrain.cli.display import ProgressBar, TaskBar, report
+from scan2terrain.cli.parser import build_parser
 from scan2terrain.errors import InputError, Scan2TerrainError, shown
-from scan2terrain.exporters.output import OutputDir
 
 __all__ = ["COMMAND_DEFAULTS", "build_parser", "main", "report"]
 
@@ -64,9 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if args.verbose:
             traceback.print_exc()
-        if isinstance(exc, Scan2TerrainError):
-            text = name_flags(_one_line(exc), flags_of(parser, args.command))
-            print(f"scan2terrain: error: {text}", file=sys.stderr)
+        if isinstance(exc, Scan2TerrainError):  # its config keys named as flags by api.run
+            print(f"scan2terrain: error: {_one_line(exc)}", file=sys.stderr)
             return 2
         print(
             f"scan2terrain: internal error: {type(exc).__name__}: {_one_line(exc)} "
@@ -129,19 +131,10 @@ def _drop_stdout() -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    command = COMMANDS[args.command]
-    overrides: dict[str, Any] = {
-        k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS
-    }
-    cfg = load_config(args.config, overrides, defaults=dict(command.defaults))
-    out = getattr(args, "out", None)
-    side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
-    if out is not None and side_inputs:  # files besides the command's input never go either
-        OutputDir.check_target(out, args.overwrite, tuple(side_inputs))
-    if command.numba and not args.quiet:
+    if COMMANDS[args.command].numba and not args.quiet:
         # Said when numba really compiles (a cache miss), and how long it took, once done.
         with load("scan2terrain.warmup:CompileWatch")(on_start=_say_compiling) as watch:
-            text = command.run(args, cfg)
+            result = _with_bars(args)
         if watch.compiled:
             took = f"{watch.seconds:.0f}" if watch.seconds >= 1 else f"{watch.seconds:.1f}"
             print(
@@ -150,10 +143,26 @@ def _run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     else:
-        text = command.run(args, cfg)
+        result = _with_bars(args)
     if not args.quiet:
-        print(text)
+        print(result.text)
     return 0
+
+
+def _with_bars(args: argparse.Namespace) -> api.Result:
+    """The command run, its progress shown in bars on stderr (--progress)."""
+    if not show_progress(args):
+        return api.run(args)  # no bar: bag2world makes no counting pass
+    counts = load("scan2terrain.types:ScanCounts")  # numpy, which the command loads anyway
+    with ProgressBar(enabled=True) as bar, TaskBar(enabled=True) as tasks:
+
+        def progress(p: Progress) -> None:
+            if p.unit == "scan":
+                bar.update(counts(messages=p.done, points=p.points), p.total)
+            else:
+                tasks.update(p.done, p.total, p.points)
+
+        return api.run(args, progress=progress)
 
 
 def _say_compiling() -> None:

@@ -11,7 +11,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-import scan2terrain
 from scan2terrain.cli.dispatch import COMMANDS
 from scan2terrain.cli.options import (
     Options,
@@ -35,6 +34,7 @@ from scan2terrain.cli.options import (
     voxel_options,
 )
 from scan2terrain.config import load_config
+from scan2terrain.errors import ConfigError
 
 EXAMPLES = r"""
 examples:
@@ -72,7 +72,10 @@ class Parser(argparse.ArgumentParser):
         unknown = self._unknown_options()
         message = "; ".join(unknown) if unknown else _suggest_choice(message)
         # The top level reports what a command left over: in that command's words.
-        parser = self._command() or self
+        self.refuse(self._command() or self, message)
+
+    def refuse(self, parser: Parser, message: str) -> NoReturn:
+        """The usage mistake ``message`` in ``parser``'s words: its line, then a short usage."""
         parser.exit(2, f"{parser.prog}: error: {message}\n{parser._short_usage()}\n")
 
     def _command(self) -> Parser | None:
@@ -113,6 +116,15 @@ class Parser(argparse.ArgumentParser):
             elif a.required:
                 words.append(f"{a.option_strings[0]} {_metavar(a)}")
         return f"usage: {' '.join(words)} [options]\n`{self.prog} --help` lists them all"
+
+
+class RaisingParser(Parser):
+    """The parser of the Python API (``scan2terrain.api``): a usage mistake (a value of the
+    wrong type, not a choice, a wrong count of values) raises :class:`ConfigError` with the
+    words the command line prints after ``error:``, instead of exiting."""
+
+    def refuse(self, parser: Parser, message: str) -> NoReturn:
+        raise ConfigError(message)
 
 
 def _metavar(action: argparse.Action) -> str:
@@ -163,12 +175,18 @@ class _Version(argparse.Action):
         super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
 
     def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
-        print(f"{parser.prog} {scan2terrain.__version__}")  # on stdout, as argparse's own
+        # Read here as ``scan2terrain.__version__`` reads it: the package itself re-exports the
+        # Python API, which is above the CLI (tests/test_architecture.py).
+        from importlib.metadata import version
+
+        print(f"{parser.prog} {version('scan2terrain')}")  # on stdout, as argparse's own
         parser.exit()
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(
+def build_parser(parser_class: type[Parser] = Parser) -> Parser:
+    """The command line's parser (``parser_class``: :class:`RaisingParser` for the Python API;
+    its sub-commands' parsers are of the same class)."""
+    parser = parser_class(
         prog="scan2terrain",
         description="Turn maps, images and scans into Gazebo worlds lined up with the map frame.",
         epilog=EXAMPLES,
