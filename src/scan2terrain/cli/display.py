@@ -166,6 +166,9 @@ def report(result: Result) -> str:
             lines += spawn_lines(p.simulator, w.spawn)
     if result.preview is not None:
         lines.append(f"  preview ({result.preview_label}): {result.preview}")
+    if result.preview3d is not None:
+        sim = result.worlds[0].placement.simulator
+        lines.append(f"  3D preview ({sim} collision geometry, spawn in red): {result.preview3d}")
     for note in result.notes:
         lines.append(f"  {note}")
     lines.append(f"  effective config: {result.config}")

@@ -153,12 +153,7 @@ def lift_low(beams: Beams, floor: float | None) -> tuple[Beams, int]:
 def world_geometry(world: SimWorld) -> tuple[WorldGeometry, tuple[float, float, float]]:
     """One world's collision geometry, read back from its bytes, and the offset of its frame
     from the map frame."""
-
-    geometry = read_world(
-        Path(world.name),
-        simulator=world.placement.simulator,  # type: ignore[arg-type]
-        files={**world.files, world.name: world.world},
-    )
+    geometry = world.collisions()
     return geometry, (world.map_offset[0], world.map_offset[1], world.z_offset)
 
 

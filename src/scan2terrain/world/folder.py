@@ -15,20 +15,21 @@ from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, cast
 
 from scan2terrain.config import Config
 from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.exporters.output import MARKER, OutputDir, atomic_output
+from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
 from scan2terrain.types import (
     OccupancyGrid,
     Pose2D,
     Spawn,
 )
 from scan2terrain.world.georef import georeference
-from scan2terrain.world.preview import Preview
+from scan2terrain.world.preview import Preview, preview3d
 
 WORLD_FILES = {GZ: "world_gz.sdf", CLASSIC: "world_classic.world"}
 
@@ -37,6 +38,7 @@ CONFIG_FILE = MARKER  # scan2terrain.yaml: what marks a folder --overwrite may r
 
 
 SPAWN_FILE = "spawn.yaml"
+PREVIEW3D_FILE = "preview3d.png"
 
 
 #: What the extra files a command writes beside the world are, for the report (by stem).
@@ -80,6 +82,7 @@ class Result:
     resolution: float = 0.0
     size_z: float = 0.0
     preview: Path | None = None
+    preview3d: Path | None = None  #: the oblique picture of the first world's collisions
     config: Path | None = None
     notes: list[str] = field(default_factory=list)  #: what was read and chosen, for the report
     geometry: str = "heightmap"  #: world.geometry of the worlds written
@@ -107,6 +110,13 @@ class SimWorld:
     def name(self) -> str:
         """The world file's name in the folder."""
         return WORLD_FILES[self.placement.simulator]
+
+    def collisions(self) -> WorldGeometry:
+        """Its collision triangles in its frame, read back from its bytes as the simulator's
+        physics gets them (:func:`~scan2terrain.readers.world.read_world`)."""
+        simulator = cast("Simulator", self.placement.simulator)
+        files = {**self.files, self.name: self.world}
+        return read_world(Path(self.name), simulator=simulator, files=files)
 
 
 class Derived(Protocol):
@@ -159,6 +169,7 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
     extra = _derived(folder, result)
+    picture = preview3d(folder.worlds[0]) if cfg.output.preview and folder.worlds else None
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, folder.map_out)
         for part in folder.worlds:
@@ -172,6 +183,8 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
             result.worlds.append(
                 _world_output(part.placement, world, out / "models", yamls, part.spawn)
             )
+        if picture is not None:
+            result.preview3d = od.write(PREVIEW3D_FILE, picture)
         _write_tail(od, result, cfg, source=folder.source, preview=folder.preview, extra=extra)
         made = od.made
     if made:

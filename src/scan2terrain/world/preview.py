@@ -1,15 +1,26 @@
 """preview.png: the input beside the filtered grid and their difference, or the input alone;
-and whether, and how, the configured filter changes a grid (for the preview and the report)."""
+and whether, and how, the configured filter changes a grid (for the preview and the report).
+preview3d.png: the collision geometry of a world as written, seen obliquely, with the spawn
+pose."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.config import Config
 from scan2terrain.exporters.preview import preview_png
+from scan2terrain.exporters.render3d import render_png
+
+if TYPE_CHECKING:
+    from scan2terrain.world.folder import SimWorld
+
+
+#: The collisions our worlds name the ground under walls and terrain (exporters/sdf.py).
+GROUNDS = ("ground_collision", "floor_collision")
 
 
 @dataclass(frozen=True)
@@ -29,6 +40,22 @@ def make_preview(
             preview_png(before, after, occupancy=occupancy), "original | filtered | difference"
         )
     return Preview(preview_png(before, None, occupancy=occupancy), "the input; filtering off")
+
+
+def preview3d(world: SimWorld) -> bytes:
+    """preview3d.png of one simulator's world: its collision triangles read back from the files
+    as computed (:func:`~scan2terrain.readers.world.read_world`, so the picture is what the
+    physics gets), drawn obliquely with a robot-sized box at the spawn pose."""
+    geometry = world.collisions()
+    x, y, z, _, _, yaw = world.spawn
+    # Fitted to what stands on the ground: a small room's ground slab is 10 m wider each way.
+    standing = [
+        geometry.part(k).reshape(-1, 3)
+        for k, part in enumerate(geometry.parts)
+        if not any(f"/{name}:" in part for name in GROUNDS)
+    ]
+    fit = np.concatenate(standing) if standing else None
+    return render_png(geometry.vertices, geometry.triangles, spawn=(x, y, z, yaw), fit=fit)
 
 
 def grey8(heights: NDArray[np.float32], lo: float, hi: float) -> NDArray[np.uint8]:
