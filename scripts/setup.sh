@@ -52,9 +52,10 @@ if [ "$extra" = "test" ]; then
     pkg-config --exists "$pc" 2>/dev/null || need+=(x)
   done
   command -v edit_octree >/dev/null || need+=(x)
+  command -v chromium >/dev/null || need+=(x)  # test_view loads the viewer's page in it
   if [ "${#need[@]}" -gt 0 ] || ! command -v g++ >/dev/null; then
     apt_install libsdformat-dev libignition-common-graphics-dev libignition-physics-dev \
-      libignition-physics-heightmap-dev pkg-config g++ octomap-tools
+      libignition-physics-heightmap-dev pkg-config g++ octomap-tools chromium
   fi
   pip_install ".[test]"
 else

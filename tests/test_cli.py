@@ -77,6 +77,7 @@ def test_map2world_writes_the_documented_folder(
             "map/map_classic.yaml",
             "map/map_gz.yaml",
             "preview.png",
+            "preview3d.png",
             "scan2terrain.yaml",
             "spawn.yaml",
             "world_classic.world",

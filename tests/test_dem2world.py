@@ -152,7 +152,14 @@ def test_cli_writes_the_folder_and_reports_the_offset(
     assert code == 0, err
     assert "latitude 37.98374999" in stdout and "z = elevation in gz-sim" in stdout
     names = {p.name for p in out.iterdir()}
-    assert names == {"world_gz.sdf", "models", "preview.png", "scan2terrain.yaml", "spawn.yaml"}
+    assert names == {
+        "world_gz.sdf",
+        "models",
+        "preview.png",
+        "preview3d.png",
+        "scan2terrain.yaml",
+        "spawn.yaml",
+    }
     cfg = yaml.safe_load((out / "scan2terrain.yaml").read_text())
     assert cfg["terrain"]["bit_depth"] == 16 and cfg["world"]["simulator"] == "gz"
     assert cfg["filter"]["kind"] == "none"

@@ -8,11 +8,13 @@ import argparse
 import functools
 import re
 import shlex
+import urllib.request
 from pathlib import Path
 
 import pytest
 
 from scan2terrain.cli import build_parser, main
+from scan2terrain.commands.view import Viewer
 from tests.fixtures import ROOT
 
 
@@ -53,7 +55,7 @@ def test_the_documents_show_commands() -> None:
     """Guards the parsers above: both sources name every command at least once."""
     readme, helps = readme_commands(), help_commands()
     commands = {"map2world", "image2world", "dem2world", "octree2world", "bag2world"}
-    commands |= {"cloud2world", "convert", "inspect", "fidelity"}
+    commands |= {"cloud2world", "convert", "inspect", "fidelity", "view"}
     assert {c.split()[1] for c in readme} == commands
     assert {c.split()[1] for c in helps} == commands
     assert len(readme) >= 15 and len(helps) >= 20
@@ -102,6 +104,11 @@ def prerequisites(words: list[str]) -> list[str]:
     ]
 
 
+def _fetch_once(viewer: Viewer) -> None:
+    with urllib.request.urlopen(viewer.url, timeout=30) as page:
+        assert page.status == 200 and b"<html" in page.read()
+
+
 @pytest.mark.parametrize(
     "command",
     sorted(set(readme_commands()) | set(help_commands())),
@@ -117,6 +124,8 @@ def test_documented_command_runs(
         (tmp_path / name).symlink_to(ROOT / name, target_is_directory=True)
     monkeypatch.chdir(tmp_path)
     words = argv(command)
+    if words[0] == "view":  # serves until Ctrl-C: here, until its page has been fetched once
+        monkeypatch.setattr(Viewer, "wait", _fetch_once)
     for before in prerequisites(words):  # what an earlier documented line wrote, made first
         assert main(argv(before)) == 0, before
         capsys.readouterr()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from scan2terrain.cli import build_parser, main
+from scan2terrain.commands.view import Viewer
 from tests.bagmaker import synthetic_room
 from tests.conftest import write_map
 from tests.fixtures import MOON
@@ -47,6 +48,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[str]]:
         "convert": [str(root / "cloud.xyz"), "OUT.ply"],
         "inspect": [str(bag)],
         "dem2world": [str(MOON)],
+        "view": [str(world)],
     }
 
 
@@ -79,6 +81,7 @@ def test_every_command_has_numeric_options() -> None:
         "inspect",
         "dem2world",
         "fidelity",
+        "view",
     }
 
 
@@ -91,8 +94,10 @@ def argv_for(
         args += [files[0], str(out.with_suffix(".ply"))]
     else:
         args += files
-    if command not in ("convert", "inspect"):
+    if command not in ("convert", "inspect", "view"):
         args += ["-o", str(out)]
+    if command == "view":
+        args += ["--no-browser"]
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     opt = next(o for o in sub.choices[command]._actions if option in o.option_strings)
@@ -117,9 +122,12 @@ def test_absurd_values_are_refused_or_work(
     inputs: dict[str, list[str]],
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     out = tmp_path / "out"
     argv = argv_for(command, option, value, inputs, out)
+    if command == "view":  # a port that serves: stop at once instead of waiting for Ctrl-C
+        monkeypatch.setattr(Viewer, "wait", lambda viewer: None)
     try:
         code = main(argv)
     except SystemExit as exc:  # argparse: not a number, not a choice (usage line + error)

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
         keywords,
         map2world,
         octree2world,
+        view,
     )
 
     __version__: str
@@ -46,6 +47,7 @@ __all__ = [
     "keywords",
     "map2world",
     "octree2world",
+    "view",
 ]
 
 

@@ -69,6 +69,7 @@ __all__ = [
     "keywords",
     "map2world",
     "octree2world",
+    "view",
 ]
 
 #: A file or folder, as a string or a path.
@@ -167,9 +168,10 @@ def run(args: argparse.Namespace, *, progress: ProgressCallback | None = None) -
     command = COMMANDS[args.command]
     try:
         overrides = {k: v for k, v in vars(args).items() if "." in k or k in TOP_LEVEL_KEYS}
-        cfg = load_config(args.config, overrides, defaults=dict(command.defaults))
+        config = getattr(args, "config", None)  # view takes no config
+        cfg = load_config(config, overrides, defaults=dict(command.defaults))
         out = getattr(args, "out", None)
-        side_inputs = [p for p in (args.config, cfg.scans.trajectory) if p is not None]
+        side_inputs = [p for p in (config, cfg.scans.trajectory) if p is not None]
         if out is not None and side_inputs:  # files besides the command's input never go either
             OutputDir.check_target(out, args.overwrite, tuple(side_inputs))
         done = command.run(args, cfg, progress)
@@ -488,6 +490,35 @@ def fidelity(world: StrPath, recording: StrPaths, out: StrPath, **options: Any) 
     return _call("fidelity", [world, *_many(recording)], out, options)
 
 
+def view(world: StrPath, **options: Any) -> Result:
+    """A world folder in the browser until Ctrl-C: ``scan2terrain view``.
+
+    Parameters
+    ----------
+    world : str or os.PathLike
+        The world folder (written by scan2terrain).
+    **options
+        The command's options by long flag (module docstring, :func:`keywords`):
+        ``host="127.0.0.1"``, ``port=8080``, ``no_browser=True``.
+
+    Returns
+    -------
+    Result
+        When the server stops (Ctrl-C); nothing is written. To serve without blocking, use
+        :class:`scan2terrain.commands.view.Viewer`.
+
+    Raises
+    ------
+    InputError
+        ``world`` is not a world folder, a file in it is broken, or the port cannot be served.
+    ConfigError
+        An option's value is refused, as the command line refuses it.
+    TypeError
+        A keyword the command does not take.
+    """
+    return _call("view", [world], None, options)
+
+
 #: The function of each command, by the command's name.
 COMMAND_FUNCTIONS = {
     "map2world": map2world,
@@ -499,6 +530,7 @@ COMMAND_FUNCTIONS = {
     "inspect": inspect,
     "dem2world": dem2world,
     "fidelity": fidelity,
+    "view": view,
 }
 
 

@@ -173,6 +173,11 @@ def _fidelity(args: argparse.Namespace, cfg: Config, _: ProgressCallback | None)
     return result
 
 
+def _view(args: argparse.Namespace, cfg: Config, _: ProgressCallback | None) -> str:
+    view: Callable[..., str] = load("scan2terrain.commands.view:view")
+    return view(args.world, host=args.host, port=args.port, browser=not args.no_browser)
+
+
 #: Every command, in the order --help lists them.
 COMMANDS: dict[str, Command] = {
     "map2world": Command(_map2world),
@@ -194,6 +199,7 @@ COMMANDS: dict[str, Command] = {
     ),
     # A world is scored for one simulator: gz-sim's, unless told.
     "fidelity": Command(_fidelity, defaults={"world.simulator": "gz"}),
+    "view": Command(_view),
 }
 
 #: Each command's own defaults (:attr:`Command.defaults`), for callers that build its config.

@@ -75,6 +75,18 @@ def run_options(o: Options) -> None:
     o.add("-q", "--quiet", action="store_true", help="print nothing on success")
 
 
+def view_options(o: Options) -> None:
+    """Where ``view`` serves, and whether it opens a browser."""
+    o.add(
+        "--host",
+        default="127.0.0.1",
+        help="address to serve on (default: 127.0.0.1, this "
+        "machine only; 0.0.0.0 serves every network the machine is on)",
+    )
+    o.add("--port", type=int, default=8080, help="port to serve on (default: 8080)")
+    o.add("--no-browser", action="store_true", help="only print the URL; do not open a browser")
+
+
 def config_option(o: Options) -> None:
     o.add("--config", type=Path, help="YAML config file (see configs/); flags override it")
 

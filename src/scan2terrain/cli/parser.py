@@ -31,6 +31,7 @@ from scan2terrain.cli.options import (
     simulator_option,
     stream_options,
     unknown_options,
+    view_options,
     voxel_options,
 )
 from scan2terrain.config import load_config
@@ -255,6 +256,7 @@ def build_parser(parser_class: type[Parser] = Parser) -> Parser:
     bag_commands(add)
     dem_command(add)
     fidelity_command(add)
+    view_command(add)
     return parser
 
 
@@ -395,6 +397,25 @@ def fidelity_command(add: Adder) -> None:
     scan_options(f, bag=True, insert=False)
     max_range_option(f)
     run_options(f)
+
+
+def view_command(add: Adder) -> None:
+    w = add(
+        "view",
+        help="a world folder in the browser: collisions, spawn pose, trajectory, fidelity",
+        description="Serve a world folder written by scan2terrain as a 3D page (viser; works "
+        "offline): each world's collision geometry as its simulator builds it (gz-sim's, with "
+        "a switch to Classic's where they differ), the spawn pose, trajectory.tum and the "
+        "fidelity.yaml figures when present. Prints the URL and serves until Ctrl-C; writes "
+        "nothing.",
+        epilog="example:\n"
+        "  scan2terrain map2world fixtures/maps/map_nav2_warehouse_003/warehouse.yaml "
+        "-o warehouse_world\n"
+        "  scan2terrain view warehouse_world --no-browser\n",
+    )
+    w.add("world", type=Path, help="world folder (written by scan2terrain)")
+    view_options(w)
+    run_options(w)
 
 
 def dem_command(add: Adder) -> None:

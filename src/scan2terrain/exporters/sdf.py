@@ -38,6 +38,9 @@ from scan2terrain.texts import decimal_text
 from scan2terrain.types import EarthAnchor
 
 SDF_VERSION = {GZ: "1.9", CLASSIC: "1.6"}
+#: The names of the slabs under a terrain and under walls or voxels (pictures and the viewer
+#: frame what stands on them).
+FLOOR_COLLISION, GROUND_COLLISION = "floor_collision", "ground_collision"
 #: Gazebo's own default vertex sampling for each SDF version we write.
 DEFAULT_SAMPLING = {GZ: 1, CLASSIC: 2}
 #: Textures that ship with Gazebo Classic (gazebo/media/materials/textures), lowest terrain first.
@@ -167,7 +170,7 @@ def model_sdf(
     # side contacts of the flat triangles around it) and lets it sink through, then fall
     # forever; on the slab it rests. A slab, not a <plane>: dartsim makes a plane a 2100 m
     # cube, whose contacts are centimetres off in places (see _walls_model).
-    floor = _sub(link, "collision", name="floor_collision")
+    floor = _sub(link, "collision", name=FLOOR_COLLISION)
     cx, cy, z0 = (hm.centre[0], hm.centre[1], hm.z_min) if p.simulator == GZ else (0, 0, 0)
     _sub(floor, "pose", _fmt(cx, cy, z0 - GROUND_THICKNESS / 2, 0, 0, 0))
     _sub(_sub(_sub(floor, "geometry"), "box"), "size", _fmt(p.size[0], p.size[1], GROUND_THICKNESS))
@@ -323,7 +326,7 @@ def _walls_model(
     # <plane>: gz-physics' dartsim makes a plane a 2100 m cube (SDFFeatures.cc ConstructPlane),
     # and Bullet's cylinder-box contacts against it are off by centimetres in places (a wheel
     # sank 4.4 cm into Willow Garage's floor); against a box the size of the map they are exact.
-    collision = _sub(link, "collision", name="ground_collision")
+    collision = _sub(link, "collision", name=GROUND_COLLISION)
     _sub(collision, "pose", _fmt(cx, cy, ground.z - GROUND_THICKNESS / 2, 0, 0, ground.yaw))
     slab = (*(side + 2 * GROUND_MARGIN for side in ground.size), GROUND_THICKNESS)
     _sub(_sub(_sub(collision, "geometry"), "box"), "size", _fmt(*slab))

@@ -169,7 +169,9 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
     extra = _derived(folder, result)
-    picture = preview3d(folder.worlds[0]) if cfg.output.preview and folder.worlds else None
+    picture = None
+    if cfg.output.preview and folder.worlds:
+        picture = preview3d(folder.worlds[0].collisions(), folder.worlds[0].spawn)
     with atomic_output(out, overwrite=overwrite) as od:
         _write_map_pgm(od, cfg, folder.map_out)
         for part in folder.worlds:

@@ -14,13 +14,14 @@ from numpy.typing import NDArray
 from scan2terrain.config import Config
 from scan2terrain.exporters.preview import preview_png
 from scan2terrain.exporters.render3d import render_png
+from scan2terrain.exporters.sdf import FLOOR_COLLISION, GROUND_COLLISION
 
 if TYPE_CHECKING:
-    from scan2terrain.world.folder import SimWorld
+    from scan2terrain.readers.world import WorldGeometry
 
 
-#: The collisions our worlds name the ground under walls and terrain (exporters/sdf.py).
-GROUNDS = ("ground_collision", "floor_collision")
+#: The collisions our worlds name the ground under walls and terrain.
+GROUNDS = (GROUND_COLLISION, FLOOR_COLLISION)
 
 
 @dataclass(frozen=True)
@@ -42,12 +43,11 @@ def make_preview(
     return Preview(preview_png(before, None, occupancy=occupancy), "the input; filtering off")
 
 
-def preview3d(world: SimWorld) -> bytes:
-    """preview3d.png of one simulator's world: its collision triangles read back from the files
-    as computed (:func:`~scan2terrain.readers.world.read_world`, so the picture is what the
-    physics gets), drawn obliquely with a robot-sized box at the spawn pose."""
-    geometry = world.collisions()
-    x, y, z, _, _, yaw = world.spawn
+def preview3d(geometry: WorldGeometry, spawn: tuple[float, ...]) -> bytes:
+    """preview3d.png of one simulator's world: its collision triangles (read back from the
+    files as computed, ``SimWorld.collisions``, so the picture is what the physics gets),
+    drawn obliquely with a robot-sized box at the spawn pose (x, y, z, roll, pitch, yaw)."""
+    x, y, z, _, _, yaw = spawn
     # Fitted to what stands on the ground: a small room's ground slab is 10 m wider each way.
     standing = [
         geometry.part(k).reshape(-1, 3)

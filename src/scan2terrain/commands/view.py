@@ -1,0 +1,340 @@
+"""``scan2terrain view OUT/``: a world folder in the browser, served by viser.
+
+viser (Apache-2.0) is a local web server whose three.js client ships in its wheel, so the page
+works offline, from pip, with no Gazebo. What is shown is what the physics gets: each world's
+collision triangles read back from its files (:func:`~scan2terrain.readers.world.read_world`,
+heightmaps triangulated as gz-physics' dartsim or Classic's ODE lays them out), one mesh per
+``<collision>``, under ``/gz`` and ``/classic`` (a folder written for both simulators shows
+gz-sim's, with a switch to Classic's where they differ); the spawn pose of that world (a
+robot-sized box and a heading arrow); ``trajectory.tum`` when present (the sensor's path); and
+the figures of ``fidelity.yaml`` when present. Nothing is written into the folder.
+
+:func:`load_folder` reads (and refuses what is not a world folder, as the other commands refuse
+their inputs), :class:`Viewer` serves; the command line's ``view`` runs one until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import webbrowser
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scan2terrain.errors import ConfigError, InputError
+from scan2terrain.exporters.sdf import FLOOR_COLLISION, GROUND_COLLISION
+from scan2terrain.readers.tracks import read_tum
+from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
+
+if TYPE_CHECKING:
+    import viser
+
+WORLD_FILES: dict[Simulator, str] = {"gz": "world_gz.sdf", "classic": "world_classic.world"}
+#: The robot box at the spawn pose (length, width, height, metres), as preview3d.png draws it.
+ROBOT_BOX = (0.5, 0.4, 0.3)
+GROUND_RGB = (105, 145, 105)
+SOLID_RGB = (190, 95, 65)
+TERRAIN_RGB = (200, 180, 120)
+SPAWN_RGB = (220, 40, 40)
+PATH_RGB = (30, 90, 230)
+#: The collisions our worlds name the ground under walls and terrain.
+GROUNDS = (GROUND_COLLISION, FLOOR_COLLISION)
+
+
+@dataclass(frozen=True)
+class SimScene:
+    """One simulator's world in the folder: its collisions and spawn pose."""
+
+    simulator: Simulator
+    geometry: WorldGeometry
+    #: x, y, z, roll, pitch, yaw in this world's frame (spawn.yaml), or None.
+    spawn: tuple[float, ...] | None
+
+
+@dataclass(frozen=True)
+class Folder:
+    """A world folder, read for viewing."""
+
+    path: Path
+    worlds: tuple[SimScene, ...]
+    trajectory: NDArray[np.float64] | None  #: (N, 3) sensor positions, trajectory.tum
+    fidelity: dict[str, Any] | None  #: fidelity.yaml as read
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def differ(self) -> bool:
+        """Whether the simulators' collision geometry differs (then both are offered)."""
+        if len(self.worlds) < 2:
+            return False
+        a, b = (w.geometry for w in self.worlds[:2])
+        return a.vertices.shape != b.vertices.shape or not (
+            np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
+        )
+
+
+def load_folder(path: Path) -> Folder:
+    """The worlds, spawn poses, trajectory and fidelity figures of a world folder.
+
+    Raises
+    ------
+    InputError
+        ``path`` is not a folder, holds no world file of ours, or a file in it is broken.
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(path, "not a folder (view takes a world folder written by scan2terrain)")
+    present = [(sim, path / name) for sim, name in WORLD_FILES.items() if (path / name).is_file()]
+    if not present:
+        raise InputError(
+            path, "not a world folder: it holds neither world_gz.sdf nor world_classic.world"
+        )
+    spawns = _spawns(path / "spawn.yaml", yaml)
+    worlds = tuple(
+        SimScene(sim, read_world(file, simulator=sim), spawns.get(sim)) for sim, file in present
+    )
+    trajectory = _trajectory(path / "trajectory.tum")
+    fidelity = None
+    if (path / "fidelity.yaml").is_file():
+        fidelity = _yaml_mapping(path / "fidelity.yaml", yaml)
+    return Folder(path, worlds, trajectory, fidelity)
+
+
+def _yaml_mapping(file: Path, yaml: Any) -> dict[str, Any]:
+    try:
+        doc = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise InputError(file, f"cannot be read as YAML ({type(exc).__name__})") from None
+    if not isinstance(doc, dict):
+        raise InputError(file, "not a YAML mapping")
+    return doc
+
+
+def _spawns(file: Path, yaml: Any) -> dict[str, tuple[float, ...]]:
+    """Each simulator's spawn pose in spawn.yaml (none when the file is absent)."""
+    if not file.is_file():
+        return {}
+    doc = _yaml_mapping(file, yaml)
+    poses: dict[str, tuple[float, ...]] = {}
+    for sim in WORLD_FILES:
+        entry = doc.get(sim)
+        if entry is None:
+            continue
+        pose = entry.get("pose") if isinstance(entry, dict) else None
+        if (
+            not isinstance(pose, list)
+            or len(pose) != 6
+            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)
+            or max(abs(v) for v in pose) > 1e7
+        ):
+            raise InputError(file, f"{sim}.pose must be six finite numbers, got {pose!r}")
+        poses[sim] = tuple(float(v) for v in pose)
+    return poses
+
+
+def _trajectory(file: Path) -> NDArray[np.float64] | None:
+    """The positions of trajectory.tum (t x y z qx qy qz qw per line), or None."""
+    if not file.is_file():
+        return None
+    positions: NDArray[np.float64] = read_tum(file).translations
+    return positions
+
+
+class Viewer:
+    """A viser server showing a :class:`Folder`; :meth:`stop` ends it.
+
+    ``meshes`` counts the meshes sent (collisions of every simulator shown, the robot box).
+    """
+
+    def __init__(self, folder: Folder, *, host: str = "127.0.0.1", port: int = 8080) -> None:
+        import viser
+
+        self.folder = folder
+        self.server = _server(viser, host, port)
+        self.meshes = 0
+        self._stopped = threading.Event()
+        self._show(self.server)
+
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        shown = "localhost" if host in ("127.0.0.1", "::1", "localhost") else host
+        return f"http://{shown}:{self.server.get_port()}"
+
+    def stop(self) -> None:
+        self.server.stop()
+        self._stopped.set()
+
+    def wait(self) -> None:
+        """Until :meth:`stop` (from another thread) or Ctrl-C."""
+        self._stopped.wait()
+
+    def _show(self, server: viser.ViserServer) -> None:
+        folder = self.folder
+        server.scene.set_up_direction("+z")
+        shown = folder.worlds if folder.differ else folder.worlds[:1]
+        handles: dict[str, list[Any]] = {}
+        for scene in shown:
+            handles[scene.simulator] = self._world(server, scene)
+        first = shown[0]
+        if first.spawn is not None:
+            self._spawn(server, first.spawn)
+        if folder.trajectory is not None and len(folder.trajectory) > 1:
+            path = folder.trajectory
+            segments = np.stack([path[:-1], path[1:]], axis=1).astype(np.float32)
+            server.scene.add_line_segments(
+                "/trajectory", points=segments, colors=PATH_RGB, thickness=2.0
+            )
+        self._panel(server, shown, handles)
+        _look_at(server, first.geometry)
+
+    def _world(self, server: viser.ViserServer, scene: SimScene) -> list[Any]:
+        g = scene.geometry
+        out = []
+        start = 0
+        for k, (part, count) in enumerate(zip(g.parts, g.part_triangles, strict=True)):
+            rows = g.triangles[start : start + count]
+            start += count
+            used, faces = np.unique(rows, return_inverse=True)
+            name = part.split(":", 1)[0].replace("/", "_")
+            colour = _colour(part)
+            out.append(
+                server.scene.add_mesh_simple(
+                    f"/{scene.simulator}/{k:04d}_{name}",
+                    vertices=g.vertices[used].astype(np.float32),
+                    faces=faces.reshape(-1, 3).astype(np.uint32),
+                    color=colour,
+                    flat_shading=True,
+                    side="double",
+                    visible=scene.simulator == self.folder.worlds[0].simulator,
+                )
+            )
+            self.meshes += 1
+        return out
+
+    def _spawn(self, server: viser.ViserServer, pose: tuple[float, ...]) -> None:
+        x, y, z, _, _, yaw = pose
+        wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+        length, width, height = ROBOT_BOX
+        server.scene.add_frame(
+            "/spawn", wxyz=wxyz, position=(x, y, z), axes_length=0.8, axes_radius=0.02
+        )
+        server.scene.add_box(
+            "/spawn/robot",
+            dimensions=(length, width, height),
+            position=(0.0, 0.0, height / 2),
+            color=SPAWN_RGB,
+        )
+        self.meshes += 1
+
+    def _panel(
+        self, server: viser.ViserServer, shown: tuple[SimScene, ...], handles: dict[str, list[Any]]
+    ) -> None:
+        folder = self.folder
+        lines = [f"**{folder.path.name}/**"]
+        for scene in shown:
+            g = scene.geometry
+            lines.append(
+                f"- {scene.simulator}: {len(g.parts)} collisions, {len(g.triangles):,} triangles"
+            )
+        if len(folder.worlds) > 1 and not folder.differ:
+            lines.append("- gz-sim and Classic collide with the same triangles")
+        if folder.fidelity is not None:
+            lines += _fidelity_lines(folder.fidelity)
+        server.gui.add_markdown("\n".join(lines))
+        if len(shown) > 1:
+            pick = server.gui.add_dropdown(
+                "Simulator",
+                options=tuple(s.simulator for s in shown),
+                initial_value=shown[0].simulator,
+            )
+
+            @pick.on_update
+            def _(_: Any) -> None:
+                for sim, meshes in handles.items():
+                    for mesh in meshes:
+                        mesh.visible = sim == pick.value
+
+
+def _fidelity_lines(doc: dict[str, Any]) -> list[str]:
+    """fidelity.yaml's overall figures, one line per world replayed in."""
+    lines = ["", "**Fidelity** (the recording replayed in the world)"]
+    worlds = doc.get("worlds")
+    for w in worlds if isinstance(worlds, list) else []:
+        if not isinstance(w, dict):
+            continue
+        overall = w.get("overall", {})
+        if not isinstance(overall, dict):
+            continue
+        shown = ", ".join(f"{k} {v}" for k, v in overall.items() if not isinstance(v, (dict, list)))
+        lines.append(f"- {w.get('world', '?')}: {shown}")
+    return lines
+
+
+def _colour(part: str) -> tuple[int, int, int]:
+    if any(f"/{name}:" in part for name in GROUNDS):
+        return GROUND_RGB
+    if ": heightmap" in part:
+        return TERRAIN_RGB
+    return SOLID_RGB
+
+
+def _look_at(server: viser.ViserServer, g: WorldGeometry) -> None:
+    """New clients look from the south-west at what stands on the ground (a small room's
+    ground slab is 10 m wider each way), as preview3d.png does."""
+    standing = [
+        g.part(k).reshape(-1, 3)
+        for k, part in enumerate(g.parts)
+        if not any(f"/{name}:" in part for name in GROUNDS)
+    ]
+    points = np.concatenate(standing) if standing else g.vertices
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = (lo + hi) / 2
+    reach = max(float(np.linalg.norm(hi - lo)), 1.0)
+    eye = centre + np.array([-0.5, -0.45, 0.65]) * reach
+    server.initial_camera.position = eye.astype(np.float64)
+    server.initial_camera.look_at = centre.astype(np.float64)
+    # A 3 km terrain lies beyond three.js's default far plane of 1 km.
+    whole = float(np.linalg.norm(g.vertices.max(axis=0) - g.vertices.min(axis=0)))
+    server.initial_camera.near = max(0.01, reach * 1e-4)
+    server.initial_camera.far = max(1000.0, 4.0 * (whole + reach))
+
+
+def _server(viser: Any, host: str, port: int) -> Any:
+    """A viser server on exactly ``host:port`` (viser would quietly take the next free port)."""
+    if not 1 <= port <= 65535:
+        raise ConfigError(f"--port must be a TCP port, 1 to 65535, got {port}")
+
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            raise InputError(
+                f"{host}:{port}",
+                f"cannot serve there ({exc.strerror}); pick another --port or --host",
+            ) from None
+    return viser.ViserServer(host=host, port=port, verbose=False)
+
+
+def view(out: Path, *, host: str, port: int, browser: bool) -> str:
+    """Serve ``out`` until Ctrl-C; the report line for the command line."""
+    folder = load_folder(out)
+    viewer = Viewer(folder, host=host, port=port)
+    print(f"Viewing {out}/ at {viewer.url} ({viewer.meshes} meshes; Ctrl-C stops)", flush=True)
+    if browser:
+        webbrowser.open(viewer.url)
+    try:
+        viewer.wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
+    return f"Stopped viewing {out}/"
