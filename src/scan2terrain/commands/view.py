@@ -19,6 +19,7 @@ import math
 import socket
 import threading
 import webbrowser
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -96,9 +97,13 @@ def load_folder(path: Path) -> Folder:
             path, "not a world folder: it holds neither world_gz.sdf nor world_classic.world"
         )
     spawns = _spawns(path / "spawn.yaml", yaml)
-    worlds = tuple(
-        SimScene(sim, read_world(file, simulator=sim), spawns.get(sim)) for sim, file in present
-    )
+    # Both simulators' worlds at once (numpy lets go of the GIL): to know whether they differ.
+    with ThreadPoolExecutor(max_workers=len(present)) as pool:
+        read = [pool.submit(read_world, file, simulator=sim) for sim, file in present]
+        worlds = tuple(
+            SimScene(sim, job.result(), spawns.get(sim))
+            for (sim, _), job in zip(present, read, strict=True)
+        )
     trajectory = _trajectory(path / "trajectory.tum")
     fidelity = None
     if (path / "fidelity.yaml").is_file():
@@ -178,10 +183,18 @@ class Viewer:
     def _show(self, server: viser.ViserServer) -> None:
         folder = self.folder
         server.scene.set_up_direction("+z")
+        # Shadows and the image-based light cost seconds a frame when WebGL renders in software
+        # (no GPU: SwiftShader); plain lights keep the first frame quick there.
+        server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+        server.scene.configure_environment_map(hdri=None)
+        server.scene.add_light_hemisphere(
+            "/light/sky", sky_color=(255, 255, 255), ground_color=(120, 110, 100), intensity=1.6
+        )
         shown = folder.worlds if folder.differ else folder.worlds[:1]
-        handles: dict[str, list[Any]] = {}
-        for scene in shown:
-            handles[scene.simulator] = self._world(server, scene)
+        parts = {scene.simulator: _parts(scene.geometry) for scene in shown}
+        handles: dict[str, list[Any]] = {
+            scene.simulator: self._world(server, scene, parts[scene.simulator]) for scene in shown
+        }
         first = shown[0]
         if first.spawn is not None:
             self._spawn(server, first.spawn)
@@ -192,26 +205,25 @@ class Viewer:
                 "/trajectory", points=segments, colors=PATH_RGB, thickness=2.0
             )
         self._panel(server, shown, handles)
-        _look_at(server, first.geometry)
+        _look_at(server, first.geometry, parts[first.simulator])
 
-    def _world(self, server: viser.ViserServer, scene: SimScene) -> list[Any]:
+    def _world(self, server: viser.ViserServer, scene: SimScene, parts: list[Part]) -> list[Any]:
         g = scene.geometry
         out = []
-        start = 0
-        for k, (part, count) in enumerate(zip(g.parts, g.part_triangles, strict=True)):
-            rows = g.triangles[start : start + count]
-            start += count
-            used, faces = np.unique(rows, return_inverse=True)
+        for k, (part, rows, first, last) in enumerate(parts):
             name = part.split(":", 1)[0].replace("/", "_")
             colour = _colour(part)
             out.append(
                 server.scene.add_mesh_simple(
                     f"/{scene.simulator}/{k:04d}_{name}",
-                    vertices=g.vertices[used].astype(np.float32),
-                    faces=faces.reshape(-1, 3).astype(np.uint32),
+                    vertices=g.vertices[first : last + 1].astype(np.float32),
+                    faces=(rows - first).astype(np.uint32),
                     color=colour,
                     flat_shading=True,
-                    side="double",
+                    # Our solids wind outward and our heightmaps upward (preview3d's culling
+                    # test): back faces are hidden, and culling them halves a software
+                    # renderer's work.
+                    side="front",
                     visible=scene.simulator == self.folder.worlds[0].simulator,
                 )
             )
@@ -262,6 +274,21 @@ class Viewer:
                         mesh.visible = sim == pick.value
 
 
+#: A collision's name, its triangles, and the first and last vertex they use.
+Part = tuple[str, NDArray[np.int32], int, int]
+
+
+def _parts(g: WorldGeometry) -> list[Part]:
+    """Each collision's name, triangles and the first and last vertex they use."""
+    out = []
+    start = vertex = 0
+    for part, count, vertices in zip(g.parts, g.part_triangles, g.part_vertices, strict=True):
+        out.append((part, g.triangles[start : start + count], vertex, vertex + vertices - 1))
+        start += count
+        vertex += vertices
+    return out
+
+
 def _fidelity_lines(doc: dict[str, Any]) -> list[str]:
     """fidelity.yaml's overall figures, one line per world replayed in."""
     lines = ["", "**Fidelity** (the recording replayed in the world)"]
@@ -285,23 +312,33 @@ def _colour(part: str) -> tuple[int, int, int]:
     return SOLID_RGB
 
 
-def _look_at(server: viser.ViserServer, g: WorldGeometry) -> None:
+def _bounds(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Lowest and highest x, y, z (column by column: ten times numpy's ``min(axis=0)`` on
+    millions of rows)."""
+    columns = [points[:, k] for k in range(3)]
+    return np.array([c.min() for c in columns]), np.array([c.max() for c in columns])
+
+
+def _look_at(server: viser.ViserServer, g: WorldGeometry, parts: list[Part]) -> None:
     """New clients look from the south-west at what stands on the ground (a small room's
     ground slab is 10 m wider each way), as preview3d.png does."""
-    standing = [
-        g.part(k).reshape(-1, 3)
-        for k, part in enumerate(g.parts)
-        if not any(f"/{name}:" in part for name in GROUNDS)
+    boxes = [
+        _bounds(g.vertices[first : last + 1])
+        for part, _, first, last in parts
+        if last >= first and not any(f"/{name}:" in part for name in GROUNDS)
     ]
-    points = np.concatenate(standing) if standing else g.vertices
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    if not boxes:
+        boxes = [_bounds(g.vertices)]
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
     centre = (lo + hi) / 2
     reach = max(float(np.linalg.norm(hi - lo)), 1.0)
     eye = centre + np.array([-0.5, -0.45, 0.65]) * reach
     server.initial_camera.position = eye.astype(np.float64)
     server.initial_camera.look_at = centre.astype(np.float64)
     # A 3 km terrain lies beyond three.js's default far plane of 1 km.
-    whole = float(np.linalg.norm(g.vertices.max(axis=0) - g.vertices.min(axis=0)))
+    low, high = _bounds(g.vertices)
+    whole = float(np.linalg.norm(high - low))
     server.initial_camera.near = max(0.01, reach * 1e-4)
     server.initial_camera.far = max(1000.0, 4.0 * (whole + reach))
 

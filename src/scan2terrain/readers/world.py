@@ -90,6 +90,9 @@ class WorldGeometry:
     triangles: NDArray[np.int32]
     parts: tuple[str, ...]
     part_triangles: tuple[int, ...] = ()
+    #: How many of ``vertices`` each part has: part k's are one run, after those of parts < k,
+    #: and only its triangles use them.
+    part_vertices: tuple[int, ...] = ()
 
     def part(self, k: int) -> NDArray[np.float64]:
         """The triangles of part ``k`` as coordinates, float64 (T, 3, 3)."""
@@ -146,6 +149,7 @@ class _Reader:
         self.faces: list[NDArray[np.integer]] = []
         self.parts: list[str] = []
         self.part_triangles: list[int] = []
+        self.part_vertices: list[int] = []
         self.triangle_count = 0
         self.vertex_count = 0
         self.world = Path()
@@ -299,6 +303,7 @@ class _Reader:
         if not found or kinds == {"empty"}:
             self.parts.append(f"{label}: empty, 0 triangles")
             self.part_triangles.append(0)
+            self.part_vertices.append(0)
             return
         if kinds == {"polyline"}:
             self.polyline(found, transform, label, source)
@@ -481,6 +486,7 @@ class _Reader:
         self.vertex_count += len(vertices)
         self.parts.append(f"{label}: {what}, {len(faces):,} triangles")
         self.part_triangles.append(len(faces))
+        self.part_vertices.append(len(vertices))
 
     def result(self, world: Path) -> WorldGeometry:
         if self.triangle_count == 0:
@@ -507,6 +513,7 @@ class _Reader:
             np.ascontiguousarray(triangles),
             tuple(self.parts),
             tuple(self.part_triangles),
+            tuple(self.part_vertices),
         )
 
 
