@@ -18,6 +18,7 @@ import yaml
 from numpy.typing import NDArray
 
 from scan2terrain.cli import main
+from scan2terrain.readers.cloudfile import read_cloud
 from tests.fixtures import FR079, FUSE_DIR, NAV2
 
 #: Cells of the exact rooms: a binary fraction, so cell edges are exact floats.
@@ -370,9 +371,18 @@ def test_bag2world_writes_the_replay_and_reruns_give_the_same_bytes(
         assert code == 0, err
         outs.append((out, stdout))
     (a, report), (b, _) = outs
-    for name in ("fidelity.yaml", "fidelity.png", "trajectory.tum"):
+    for name in ("fidelity.yaml", "fidelity.png", "fidelity_ends.ply", "trajectory.tum"):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
     doc = yaml.safe_load((a / "fidelity.yaml").read_text())
+    # fidelity_ends.ply: one point per replayed beam, its error the figures' own.
+    ends = read_cloud(a / "fidelity_ends.ply", attributes=True)
+    error = np.asarray(ends.attributes["error"], dtype=np.float64)
+    gz = doc["worlds"]["world_gz.sdf"]
+    assert len(error) == gz["beams"] == doc["beams_used"]
+    hit = error != -1.0
+    assert (~hit).mean() == pytest.approx(gz["nothing"], abs=1e-4)
+    assert (error[hit] <= 0.10).sum() / len(error) == pytest.approx(gz["within_10cm"], abs=2e-3)
+    assert np.median(error[hit]) == pytest.approx(gz["median"], abs=2e-3)
     assert set(doc["worlds"]) == {"world_gz.sdf", "world_classic.world"}
     for f in doc["worlds"].values():
         values = [v for k, v in f.items() if k != "tenths"]

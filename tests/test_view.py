@@ -20,7 +20,7 @@ from PIL import Image
 
 from scan2terrain.cli import main
 from scan2terrain.readers.world import read_world
-from tests.fixtures import SFBAY, TB3_MAP
+from tests.fixtures import FUSE_DIR, SFBAY, TB3_MAP
 from tests.test_preview3d import _voxel_cloud
 
 CHROMIUM = "/usr/bin/chromium"
@@ -181,6 +181,34 @@ def test_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str], worlds: dict[
         code, err = _view(capsys, str(worlds["map"]), "--port", str(port))
     assert code == 2 and err.count("\n") == 1
     assert f"127.0.0.1:{port}: cannot serve there" in err
+
+
+def test_the_replay_is_shown(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bag's world: its trajectory and the replayed beams' end points (fidelity_ends.ply),
+    coloured by error, with the figures of fidelity.yaml in the panel."""
+    import urllib.request
+
+    import yaml
+
+    from scan2terrain.commands.view import Viewer, load_folder
+
+    out = tmp_path / "w"
+    assert main(["bag2world", str(FUSE_DIR), "-o", str(out), "-q"]) == 0
+    folder = load_folder(out)
+    doc = yaml.safe_load((out / "fidelity.yaml").read_text())
+    assert folder.ends is not None and len(folder.ends[0]) == doc["beams_used"]
+    assert folder.trajectory is not None and len(folder.trajectory) == 457
+    assert folder.fidelity == doc
+    viewer = Viewer(folder, port=_free_port())
+    try:
+        with urllib.request.urlopen(viewer.url, timeout=30) as page:
+            assert page.status == 200
+        assert viewer.meshes == len(folder.worlds[0].geometry.parts) + 1
+    finally:
+        viewer.stop()
+    (out / "fidelity_ends.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\n")
+    code, err = _view(capsys, str(out))
+    assert code == 2 and err.count("\n") == 1 and "fidelity_ends.ply" in err
 
 
 def test_serves_loopback_only_by_default() -> None:

@@ -118,7 +118,7 @@ class Fidelity:
     returns: int  #: beams with a return in the recording
     overall: Figures
     tenths: tuple[Figures, ...]
-    ends: NDArray[np.float64]  #: (N, 2) the recorded end points, x y
+    ends: NDArray[np.float64]  #: (N, 3) the recorded end points, x y z
     errors: NDArray[np.float64]  #: (N,) |simulated - recorded|, inf: hit nothing
     trajectory: NDArray[np.float64]  #: (S, 2) the sensor's x y per scan
 

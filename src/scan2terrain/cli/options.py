@@ -242,7 +242,7 @@ def fidelity_option(o: Options) -> None:
         const=False,
         dest="output.fidelity",
         help="do not replay the recorded beams in the written world (fidelity.yaml, "
-        "fidelity.png and the report's fidelity line)",
+        "fidelity.png, fidelity_ends.ply and the report's fidelity line)",
     )
 
 

@@ -380,7 +380,8 @@ def fidelity_command(add: Adder) -> None:
         "the models/ folder beside the world, GZ_SIM_RESOURCE_PATH, IGN_GAZEBO_RESOURCE_PATH "
         "and GAZEBO_MODEL_PATH), and compare the simulated ranges with the recorded ones. "
         "The world frame is taken as the recording's fixed frame. Writes fidelity.yaml, "
-        "fidelity.png and trajectory.tum (the sensor poses used) to OUT.",
+        "fidelity.png, fidelity_ends.ply (each beam's end point and error) and trajectory.tum "
+        "(the sensor poses used) to OUT.",
         epilog="examples:\n"
         "  scan2terrain bag2world fixtures/bags/bag1_fuse_tb3_sim_scan_odom -o tb3_world "
         "--no-fidelity\n"

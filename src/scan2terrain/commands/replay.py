@@ -23,7 +23,12 @@ from scan2terrain.checks import refuse_existing, refuse_unused, skipped_notes
 from scan2terrain.commands.correct import correct_plan
 from scan2terrain.config import Config
 from scan2terrain.errors import FidelityWarning, InputError
-from scan2terrain.exporters.fidelity import fidelity_png, fidelity_yaml, summary
+from scan2terrain.exporters.fidelity import (
+    fidelity_ends_ply,
+    fidelity_png,
+    fidelity_yaml,
+    summary,
+)
 from scan2terrain.exporters.trajectory import tum_bytes
 from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
 from scan2terrain.readers.points import within_reach
@@ -104,6 +109,7 @@ class Replay:
         sampled = len(b.scan) < b.returns
         files["fidelity.yaml"] = fidelity_yaml(reports, beams_used=len(b.scan), sampled=sampled)
         files["fidelity.png"] = fidelity_png(reports[0])
+        files["fidelity_ends.ply"] = fidelity_ends_ply(reports[0])
         notes[:0] = [summary(r) for r in reports]
         worst = min(reports, key=lambda r: r.overall.within_10cm or 0.0)
         if (worst.overall.within_10cm or 0.0) < WARN_BELOW:
@@ -249,6 +255,7 @@ def fidelity_command(
     sampled = len(beams.scan) < beams.returns
     files["fidelity.yaml"] = fidelity_yaml([report], beams_used=len(beams.scan), sampled=sampled)
     files["fidelity.png"] = fidelity_png(report)
+    files["fidelity_ends.ply"] = fidelity_ends_ply(report)
     result = Result(out, notes=[summary(report), *got.notes, *geometry.parts])
     result.headline = f"a replay of {source.name} in {Path(world).name}"
     if (report.overall.within_10cm or 0.0) < WARN_BELOW:

@@ -20,7 +20,7 @@ import socket
 import threading
 import webbrowser
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scan2terrain.errors import ConfigError, InputError
+from scan2terrain.exporters.fidelity import CLASSES, HIT_NOTHING, NOTHING
 from scan2terrain.exporters.sdf import FLOOR_COLLISION, GROUND_COLLISION
+from scan2terrain.readers.cloudfile import read_cloud
 from scan2terrain.readers.tracks import read_tum
 from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
 
@@ -36,6 +38,8 @@ if TYPE_CHECKING:
     import viser
 
 WORLD_FILES: dict[Simulator, str] = {"gz": "world_gz.sdf", "classic": "world_classic.world"}
+#: Beam end points sent to the browser at most (a bag's replay can have millions).
+MAX_ENDS = 500_000
 #: The robot box at the spawn pose (length, width, height, metres), as preview3d.png draws it.
 ROBOT_BOX = (0.5, 0.4, 0.3)
 GROUND_RGB = (105, 145, 105)
@@ -65,7 +69,8 @@ class Folder:
     worlds: tuple[SimScene, ...]
     trajectory: NDArray[np.float64] | None  #: (N, 3) sensor positions, trajectory.tum
     fidelity: dict[str, Any] | None  #: fidelity.yaml as read
-    notes: tuple[str, ...] = field(default=())
+    #: fidelity_ends.ply: the replayed beams' end points (N, 3) and their errors (N,), or None
+    ends: tuple[NDArray[np.float64], NDArray[np.float32]] | None = None
 
     @property
     def differ(self) -> bool:
@@ -108,7 +113,18 @@ def load_folder(path: Path) -> Folder:
     fidelity = None
     if (path / "fidelity.yaml").is_file():
         fidelity = _yaml_mapping(path / "fidelity.yaml", yaml)
-    return Folder(path, worlds, trajectory, fidelity)
+    return Folder(path, worlds, trajectory, fidelity, _ends(path / "fidelity_ends.ply"))
+
+
+def _ends(file: Path) -> tuple[NDArray[np.float64], NDArray[np.float32]] | None:
+    """fidelity_ends.ply's points and their ``error``, or None when absent."""
+    if not file.is_file():
+        return None
+    cloud = read_cloud(file, attributes=True)
+    error = cloud.attributes.get("error")
+    if error is None or len(error) != len(cloud.points):
+        raise InputError(file, "has no per-point 'error' (a fidelity_ends.ply names it)")
+    return cloud.points, np.asarray(error, dtype=np.float32)
 
 
 def _yaml_mapping(file: Path, yaml: Any) -> dict[str, Any]:
@@ -202,8 +218,14 @@ class Viewer:
             path = folder.trajectory
             segments = np.stack([path[:-1], path[1:]], axis=1).astype(np.float32)
             server.scene.add_line_segments(
-                "/trajectory", points=segments, colors=PATH_RGB, thickness=2.0
+                "/trajectory",
+                points=segments,
+                colors=PATH_RGB,
+                thickness=2.0,
+                thickness_units="screen",
             )
+        if folder.ends is not None:
+            self._ends(server, *folder.ends)
         self._panel(server, shown, handles)
         _look_at(server, first.geometry, parts[first.simulator])
 
@@ -229,6 +251,24 @@ class Viewer:
             )
             self.meshes += 1
         return out
+
+    def _ends(
+        self, server: viser.ViserServer, points: NDArray[np.float64], error: NDArray[np.float32]
+    ) -> None:
+        """The replayed beams' end points, coloured by error class as fidelity.png is (at most
+        :data:`MAX_ENDS` of them, every k-th, for the browser)."""
+        step = max(1, -(-len(points) // MAX_ENDS))
+        points, error = points[::step], error[::step]
+        bounds = np.array([c[0] for c in CLASSES[:-1]])
+        colours = np.array([c[2] for c in CLASSES] + [NOTHING[1]], dtype=np.uint8)
+        kind = np.where(error == HIT_NOTHING, len(CLASSES), np.searchsorted(bounds, error))
+        server.scene.add_point_cloud(
+            "/fidelity/ends",
+            points=points.astype(np.float32),
+            colors=colours[kind],
+            point_size=0.03,
+            point_shape="circle",
+        )
 
     def _spawn(self, server: viser.ViserServer, pose: tuple[float, ...]) -> None:
         x, y, z, _, _, yaw = pose
@@ -293,14 +333,17 @@ def _fidelity_lines(doc: dict[str, Any]) -> list[str]:
     """fidelity.yaml's overall figures, one line per world replayed in."""
     lines = ["", "**Fidelity** (the recording replayed in the world)"]
     worlds = doc.get("worlds")
-    for w in worlds if isinstance(worlds, list) else []:
-        if not isinstance(w, dict):
+    for world, f in (worlds if isinstance(worlds, dict) else {}).items():
+        if not isinstance(f, dict):
             continue
-        overall = w.get("overall", {})
-        if not isinstance(overall, dict):
-            continue
-        shown = ", ".join(f"{k} {v}" for k, v in overall.items() if not isinstance(v, (dict, list)))
-        lines.append(f"- {w.get('world', '?')}: {shown}")
+        within, median = f.get("within_10cm"), f.get("median")
+        shown = [f"{f.get('beams', '?')} beams"]
+        if isinstance(within, (int, float)):
+            shown.append(f"{within:.1%} within 10 cm")
+        if isinstance(median, (int, float)):
+            shown.append(f"median error {median * 100:.1f} cm")
+        lines.append(f"- {world}: {', '.join(shown)}")
+    lines.append("- end points: " + ", ".join(c[1] for c in CLASSES) + ", hit nothing (purple)")
     return lines
 
 

@@ -1,16 +1,19 @@
-"""``fidelity.yaml`` and ``fidelity.png``: how a recording replayed in the written world(s)
-compares with what the sensor measured (:class:`~scan2terrain.types.Fidelity`)."""
+"""``fidelity.yaml``, ``fidelity.png`` and ``fidelity_ends.ply``: how a recording replayed in
+the written world(s) compares with what the sensor measured
+(:class:`~scan2terrain.types.Fidelity`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import io
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from scan2terrain.types import Fidelity, Figures
+from scan2terrain.exporters.pointcloud import cloud_bytes
+from scan2terrain.types import Cloud, Fidelity, Figures
 
 #: The picture's error classes: upper bounds (metres) and colours; then "hit nothing".
 CLASSES: tuple[tuple[float, str, tuple[int, int, int]], ...] = (
@@ -39,6 +42,25 @@ _HEADER = """\
 # first hit faced away from the sensor (it lies inside a solid). tenths: the same
 # per tenth of the recording's time. A sample is a fixed hash of each return's place.
 """
+
+
+#: fidelity_ends.ply's error for a beam that hit nothing (PLY has no inf that every reader takes).
+HIT_NOTHING = -1.0
+
+
+def fidelity_ends_ply(report: Fidelity) -> bytes:
+    """Each replayed beam's recorded end point (x, y, z in the world's frame) and its
+    ``error``: |simulated - recorded| in metres, :data:`HIT_NOTHING` where the beam hit
+    nothing; a binary PLY any point-cloud tool opens (``scan2terrain view`` colours it)."""
+    error = np.where(np.isfinite(report.errors), report.errors, HIT_NOTHING).astype(np.float32)
+    cloud = Cloud(
+        points=report.ends.astype(np.float32).astype(np.float64),  # float32 in the file
+        path=Path("fidelity_ends.ply"),
+        format="ply",
+        records=len(report.ends),
+        attributes={"error": error},
+    )
+    return bytes(cloud_bytes(cloud, ".ply").data)
 
 
 def figures_doc(f: Figures) -> dict[str, Any]:
@@ -88,7 +110,7 @@ def fidelity_png(report: Fidelity) -> bytes:
     ending in it (purple where most hit nothing), the trajectory, and a legend."""
     from PIL import Image, ImageDraw, ImageFont
 
-    ends, errors, path = report.ends, report.errors, report.trajectory
+    ends, errors, path = report.ends[:, :2], report.errors, report.trajectory
     pts = np.vstack([ends, path]) if len(ends) else path
     lo = pts.min(axis=0) - 0.5
     hi = pts.max(axis=0) + 0.5

@@ -124,7 +124,7 @@ def fidelity(
     tenths = tuple(
         figures(recorded[part == k], simulated[part == k], back[part == k]) for k in range(PARTS)
     )
-    ends = beams.origins[beams.scan, :2] + beams.vectors[:, :2]
+    ends = beams.origins[beams.scan] + beams.vectors
     return Fidelity(
         world=world,
         pose_source=pose_source,

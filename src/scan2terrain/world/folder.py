@@ -49,6 +49,7 @@ EXTRA_ABOUT = {
     "trajectory_raw": "the trajectory as recorded, before correction (TUM)",
     "fidelity.yaml": "the recording replayed in the world(s), figures",
     "fidelity.png": "where the replayed beams end, by error",
+    "fidelity_ends.ply": "each replayed beam's end point and error (PLY: x y z error)",
 }
 
 
