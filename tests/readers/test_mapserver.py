@@ -214,6 +214,19 @@ def test_bad_yaml(tmp_path: Path, body: str, message: str) -> None:
     assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("yaw", ["1e300", "-1e300", "2e6"])
+def test_an_origin_yaw_that_is_no_angle_is_refused(tmp_path: Path, yaw: str) -> None:
+    """The mutation run found 1e300: the world was written with that yaw in its SDF, which
+    Gazebo's parser and our reader refuse (beyond 1e7), so the refusal named our own file."""
+    Image.fromarray(np.zeros((4, 4), np.uint8)).save(tmp_path / "m.png")
+    (tmp_path / "m.yaml").write_text(
+        f"image: m.png\nresolution: 0.1\norigin: [0, 0, {yaw}]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.2\n"
+    )
+    with pytest.raises(InputError, match=r"m\.yaml: origin yaw .* rad is no angle"):
+        read_map_yaml(tmp_path / "m.yaml")
+
+
 def test_missing_yaml(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="map YAML file not found"):
         read_map_yaml(tmp_path / "none.yaml")

@@ -38,6 +38,9 @@ MAX_REACH_CELLS = 2.0**34
 #: ... and at most this many metres (a million km: beyond any coordinate on a planet; meshes are
 #: float32, and 1e300 m cells overflowed the outlines).
 MAX_REACH_M = 1e9
+#: An origin yaw beyond this many radians is a corrupt number, not an angle (a real map's is
+#: within +-pi; Gazebo's parser refuses pose values beyond 1e7).
+MAX_YAW_RAD = 1e6
 #: A map YAML is a few hundred bytes; a larger file is not read.
 MAX_YAML_BYTES = 1 << 20
 
@@ -91,6 +94,8 @@ def extent_problem(shape: tuple[int, ...], resolution: float, origin: Pose2D) ->
         )
     if not all(math.isfinite(v) for v in (origin.x, origin.y, origin.yaw)):
         return f"origin ({origin.x}, {origin.y}, {origin.yaw}) is not finite"
+    if abs(origin.yaw) > MAX_YAW_RAD:
+        return f"origin yaw {origin.yaw:g} rad is no angle (beyond +-{MAX_YAW_RAD:g} rad): corrupt"
     reach = max(abs(origin.x), abs(origin.y)) + math.hypot(*shape[:2]) * resolution
     if not reach <= min(MAX_REACH_CELLS * resolution, MAX_REACH_M):
         return (
