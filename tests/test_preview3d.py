@@ -91,7 +91,7 @@ def test_classic_only_world_is_drawn_from_its_own_geometry(tmp_path: Path) -> No
 
 def test_the_picture_is_the_world_as_written(tmp_path: Path) -> None:
     """Drawn again from the files on disk, it is the same picture: what the physics gets."""
-    from scan2terrain.world.preview import GROUNDS
+    from scan2terrain.exporters.sdf import is_ground
 
     out = _build(tmp_path, "walls_boxes", "w")
     geometry = read_world(out / "world_gz.sdf", simulator="gz")
@@ -101,7 +101,7 @@ def test_the_picture_is_the_world_as_written(tmp_path: Path) -> None:
     standing = [
         geometry.part(k).reshape(-1, 3)
         for k, part in enumerate(geometry.parts)
-        if not any(f"/{g}:" in part for g in GROUNDS)
+        if not is_ground(part)
     ]
     png = render3d.render_png(
         geometry.vertices, geometry.triangles, spawn=(x, y, z, yaw), fit=np.concatenate(standing)

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters.fidelity import CLASSES, HIT_NOTHING, NOTHING
-from scan2terrain.exporters.sdf import FLOOR_COLLISION, GROUND_COLLISION
+from scan2terrain.exporters.sdf import is_ground
 from scan2terrain.readers.cloudfile import read_cloud
 from scan2terrain.readers.tracks import read_tum
 from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
@@ -47,8 +47,6 @@ SOLID_RGB = (190, 95, 65)
 TERRAIN_RGB = (200, 180, 120)
 SPAWN_RGB = (220, 40, 40)
 PATH_RGB = (30, 90, 230)
-#: The collisions our worlds name the ground under walls and terrain.
-GROUNDS = (GROUND_COLLISION, FLOOR_COLLISION)
 
 
 @dataclass(frozen=True)
@@ -348,7 +346,7 @@ def _fidelity_lines(doc: dict[str, Any]) -> list[str]:
 
 
 def _colour(part: str) -> tuple[int, int, int]:
-    if any(f"/{name}:" in part for name in GROUNDS):
+    if is_ground(part):
         return GROUND_RGB
     if ": heightmap" in part:
         return TERRAIN_RGB
@@ -368,7 +366,7 @@ def _look_at(server: viser.ViserServer, g: WorldGeometry, parts: list[Part]) -> 
     boxes = [
         _bounds(g.vertices[first : last + 1])
         for part, _, first, last in parts
-        if last >= first and not any(f"/{name}:" in part for name in GROUNDS)
+        if last >= first and not is_ground(part)
     ]
     if not boxes:
         boxes = [_bounds(g.vertices)]

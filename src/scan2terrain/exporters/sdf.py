@@ -41,6 +41,14 @@ SDF_VERSION = {GZ: "1.9", CLASSIC: "1.6"}
 #: The names of the slabs under a terrain and under walls or voxels (pictures and the viewer
 #: frame what stands on them).
 FLOOR_COLLISION, GROUND_COLLISION = "floor_collision", "ground_collision"
+
+
+def is_ground(part: str) -> bool:
+    """Whether a collision read back (a ``WorldGeometry.parts`` line, ``model/link/name: ...``)
+    is one of our slabs under the walls or the terrain."""
+    return any(f"/{name}:" in part for name in (GROUND_COLLISION, FLOOR_COLLISION))
+
+
 #: Gazebo's own default vertex sampling for each SDF version we write.
 DEFAULT_SAMPLING = {GZ: 1, CLASSIC: 2}
 #: Textures that ship with Gazebo Classic (gazebo/media/materials/textures), lowest terrain first.

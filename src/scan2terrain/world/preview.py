@@ -14,14 +14,10 @@ from numpy.typing import NDArray
 from scan2terrain.config import Config
 from scan2terrain.exporters.preview import preview_png
 from scan2terrain.exporters.render3d import render_png
-from scan2terrain.exporters.sdf import FLOOR_COLLISION, GROUND_COLLISION
+from scan2terrain.exporters.sdf import is_ground
 
 if TYPE_CHECKING:
     from scan2terrain.readers.world import WorldGeometry
-
-
-#: The collisions our worlds name the ground under walls and terrain.
-GROUNDS = (GROUND_COLLISION, FLOOR_COLLISION)
 
 
 @dataclass(frozen=True)
@@ -52,7 +48,7 @@ def preview3d(geometry: WorldGeometry, spawn: tuple[float, ...]) -> bytes:
     standing = [
         geometry.part(k).reshape(-1, 3)
         for k, part in enumerate(geometry.parts)
-        if not any(f"/{name}:" in part for name in GROUNDS)
+        if not is_ground(part)
     ]
     fit = np.concatenate(standing) if standing else None
     return render_png(geometry.vertices, geometry.triangles, spawn=(x, y, z, yaw), fit=fit)
