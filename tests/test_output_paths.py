@@ -355,10 +355,14 @@ def test_a_run_stopped_while_writing_says_so_and_leaves_nothing(
     # Run under nohup (SIGHUP ignored), scan2terrain keeps going on a closed terminal, as asked:
     # the test's own process must not ignore it.
     hup = signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    # Started in the background (`cmd &`), the process ignores SIGINT from birth and Python
+    # raises no KeyboardInterrupt: give it Python's own handler, as a terminal's process has.
+    intr = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         code = main(["map2world", str(good), "-o", str(out)])
     finally:
         signal.signal(signal.SIGHUP, hup)
+        signal.signal(signal.SIGINT, intr)
     err = capsys.readouterr().err
     assert code == 128 + getattr(signal, signame), err
     assert err.startswith(f"scan2terrain: interrupted ({signame})") and err.count("\n") == 1

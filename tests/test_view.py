@@ -81,8 +81,15 @@ class Served:
         )
 
     def stop(self) -> tuple[int, str]:
-        self.proc.send_signal(signal.SIGINT)
-        out, _ = self.proc.communicate(timeout=30)
+        # `kill`, which stops it as Ctrl-C does: a process started in the background (`cmd &`,
+        # as a CI run may be) ignores SIGINT from birth.
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            out, _ = self.proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.communicate()  # closes the pipes
+            raise
         return self.proc.returncode, out
 
 
