@@ -8,7 +8,8 @@ model, then ``CreateModelEntities``, ``CreateLinkEntities``, ``CreateCollisionEn
 through ``MeshManager::Load`` + ``AttachMeshShape``, polylines through
 ``MeshManager::CreateExtrudedPolyline``), ``CreateJointEntities``), then spawns what a
 :class:`Scenario` asks for (free spheres and boxes, a Husky-sized skid-steer robot driven
-with ``SetJointVelocityCommand`` every step), steps with a fixed ``dt`` and reports
+with ``SetJointVelocityCommand`` every step, or a robot model file driven through the joints
+its DiffDrive plugin names), steps with a fixed ``dt`` and reports
 load times, shapes built and failed, trajectories, first contacts
 (``GetContactsFromLastStepFeature``) and the real-time factor of the step loop.
 
@@ -151,7 +152,36 @@ class Robot:
         return f"robot {self.name} {values}"
 
 
-Body = Sphere | Box | Robot
+@dataclass(frozen=True)
+class ModelRobot:
+    """A robot model file (SDF, e.g. a world folder's ``robot/model_gz.sdf``) built as gz-sim
+    builds a spawned model, its model frame at ``(x, y, z)`` heading ``yaw``, driven as gz-sim's
+    DiffDrive system drives it (the joints, wheel radius and separation its DiffDrive plugin
+    names): ``linear`` m/s and ``angular`` rad/s from time ``start`` (s) on, braked before. Its
+    result tracks the model's first link; ``front_*`` is that link's origin."""
+
+    name: str
+    file: Path
+    x: float
+    y: float
+    z: float = 0.0
+    yaw: float = 0.0
+    linear: float = 0.0
+    angular: float = 0.0
+    start: float = 0.0
+
+    def line(self) -> str:
+        path = str(Path(self.file).resolve())
+        if any(c.isspace() for c in path):
+            raise ValueError(f"model file path {path!r} must be one word")
+        values = " ".join(
+            repr(float(v))
+            for v in (self.x, self.y, self.z, self.yaw, self.linear, self.angular, self.start)
+        )
+        return f"model {self.name} {path} {values}"
+
+
+Body = Sphere | Box | Robot | ModelRobot
 
 
 @dataclass
@@ -231,7 +261,7 @@ class BodyResult:
     """
 
     name: str
-    kind: Literal["sphere", "box", "robot"]
+    kind: Literal["sphere", "box", "robot", "model"]
     initial_pose: Pose6
     final_pose: Pose6
     front_initial: Vec3

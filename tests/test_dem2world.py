@@ -157,6 +157,7 @@ def test_cli_writes_the_folder_and_reports_the_offset(
         "models",
         "preview.png",
         "preview3d.png",
+        "robot",
         "scan2terrain.yaml",
         "spawn.yaml",
     }

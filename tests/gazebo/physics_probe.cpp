@@ -41,6 +41,23 @@
 //                           commanded from time START on (before: 0 rad/s,
 //                           i.e. braked), every step, with
 //                           SetJointVelocityCommand.
+//   model NAME FILE X Y Z YAW LINEAR ANGULAR START
+//                           a robot model file (SDF), parsed with SDFormat
+//                           and built as gz-sim builds a spawned model (the
+//                           same path as the world's models), its model frame
+//                           at (X, Y, Z, yaw YAW); driven as gz-sim's
+//                           DiffDrive system drives it: the model's
+//                           <plugin> named *DiffDrive gives <left_joint>s,
+//                           <right_joint>s, <wheel_radius> and
+//                           <wheel_separation>, and from time START on
+//                           (braked before) each side's joints get the
+//                           velocity command (LINEAR -+ ANGULAR * separation
+//                           / 2) / radius (rad/s) every step, the speeds
+//                           ramped at most <max_linear_acceleration> and
+//                           <max_angular_acceleration> a second (as its
+//                           SpeedLimiter; none: a step). The tracked
+//                           link is the model's first link; "front" is its
+//                           origin.
 //
 // The robot: link "chassis" (frame origin on the contact plane, under the
 // chassis centre), a box 0.99 x 0.67 x 0.39 m, 46 kg, its bottom 0.08 m above
@@ -261,7 +278,7 @@ using ExtraContactData = physics::GetContactsFromLastStepFeature::World<
 /////////////////////////////////////////////////
 // Scenario
 
-enum class BodyKind { SPHERE, BOX, ROBOT };
+enum class BodyKind { SPHERE, BOX, ROBOT, MODEL };
 
 struct BodySpec
 {
@@ -274,6 +291,9 @@ struct BodySpec
   double left{0.0};
   double right{0.0};
   double start{0.0};
+  std::string file;  // MODEL: the SDF model file
+  double linear{0.0};  // MODEL: m/s
+  double angular{0.0};  // MODEL: rad/s
 };
 
 struct Scenario
@@ -352,6 +372,16 @@ bool ParseScenario(const std::string &_file, Scenario &_out, std::string &_err)
       double x, y, z, yaw;
       ok = static_cast<bool>(ss >> b.name >> x >> y >> z >> yaw >> b.left
           >> b.right >> b.start);
+      b.pose = Pose3d(x, y, z, 0, 0, yaw);
+      _out.bodies.push_back(b);
+    }
+    else if (key == "model")
+    {
+      BodySpec b;
+      b.kind = BodyKind::MODEL;
+      double x, y, z, yaw;
+      ok = static_cast<bool>(ss >> b.name >> b.file >> x >> y >> z >> yaw
+          >> b.linear >> b.angular >> b.start);
       b.pose = Pose3d(x, y, z, 0, 0, yaw);
       _out.bodies.push_back(b);
     }
@@ -774,6 +804,16 @@ struct Body
   LinkPtr link;
   std::vector<JointPtr> leftJoints;
   std::vector<JointPtr> rightJoints;
+  double leftRate{0.0};  // rad/s commanded from spec.start on
+  double rightRate{0.0};
+  // MODEL: the DiffDrive plugin's wheels and limits, and the speeds it
+  // commands now (ramped to spec.linear / spec.angular).
+  double radius{1.0};
+  double separation{0.0};
+  double linearAccel{std::numeric_limits<double>::infinity()};
+  double angularAccel{std::numeric_limits<double>::infinity()};
+  double linear{0.0};
+  double angular{0.0};
   Eigen::Isometry3d initial{Eigen::Isometry3d::Identity()};
   Eigen::Vector3d front{0, 0, 0};  // front point in the link frame
   double minZ{std::numeric_limits<double>::infinity()};
@@ -813,6 +853,89 @@ void Track(Body &_b, long _step)
   const Eigen::Vector3d advance =
       tf * _b.front - _b.initial * _b.front;
   _b.maxAdvance = std::max(_b.maxAdvance, advance.dot(heading));
+}
+
+/// A MODEL body: its first link tracked, its wheel joints and their rates
+/// from the DiffDrive plugin's elements, as gz-sim's DiffDrive system reads
+/// them (DiffDrive.cc Configure: every <left_joint> / <right_joint>,
+/// <wheel_separation>, <wheel_radius>; PreUpdate: each side's joints get
+/// (linear -+ angular * separation / 2) / radius).
+bool DriveModel(const sdf::Model &_model, BuiltModel &_built, Body &_b,
+    std::string &_err)
+{
+  if (_model.LinkCount() == 0)
+  {
+    _err = "the model has no link";
+    return false;
+  }
+  _b.link = _built.links[_model.LinkByIndex(0)->Name()];
+  _b.front = Eigen::Vector3d::Zero();
+  const sdf::ElementPtr elem = _model.Element();
+  sdf::ElementPtr plugin = elem->HasElement("plugin") ?
+      elem->GetElement("plugin") : sdf::ElementPtr();
+  for (; plugin; plugin = plugin->GetNextElement("plugin"))
+  {
+    const std::string name = plugin->Get<std::string>("name");
+    if (name.size() >= 9 && name.compare(name.size() - 9, 9, "DiffDrive") == 0)
+      break;
+  }
+  if (!plugin)
+  {
+    _err = "no <plugin> named *DiffDrive";
+    return false;
+  }
+  auto joints = [&](const std::string &_tag, std::vector<JointPtr> &_out)
+  {
+    if (!plugin->HasElement(_tag))
+      return false;
+    for (sdf::ElementPtr e = plugin->GetElement(_tag); e;
+         e = e->GetNextElement(_tag))
+    {
+      const std::string jn = e->Get<std::string>();
+      const auto it = _built.joints.find(jn);
+      if (it == _built.joints.end() || !it->second)
+      {
+        _err = "DiffDrive names joint '" + jn + "', which was not built";
+        return false;
+      }
+      _out.push_back(it->second);
+    }
+    return true;
+  };
+  if (!joints("left_joint", _b.leftJoints) ||
+      !joints("right_joint", _b.rightJoints))
+  {
+    if (_err.empty())
+      _err = "DiffDrive has no <left_joint> or <right_joint>";
+    return false;
+  }
+  if (!plugin->HasElement("wheel_radius") ||
+      !plugin->HasElement("wheel_separation"))
+  {
+    _err = "DiffDrive has no <wheel_radius> or <wheel_separation>";
+    return false;
+  }
+  const double radius = plugin->Get<double>("wheel_radius");
+  const double separation = plugin->Get<double>("wheel_separation");
+  if (!(radius > 0) || !(separation > 0))
+  {
+    _err = "DiffDrive's <wheel_radius> and <wheel_separation> must be > 0";
+    return false;
+  }
+  _b.radius = radius;
+  _b.separation = separation;
+  // SpeedLimiter: a command's change per second is at most the
+  // <max_linear_acceleration> / <max_angular_acceleration> (|min_*| alike).
+  auto limit = [&](const char *_max, const char *_min, double &_out)
+  {
+    for (const char *tag : {_max, _min})
+      if (plugin->HasElement(tag))
+        _out = std::min(_out, std::abs(plugin->Get<double>(tag)));
+  };
+  limit("max_linear_acceleration", "min_linear_acceleration", _b.linearAccel);
+  limit("max_angular_acceleration", "min_angular_acceleration",
+      _b.angularAccel);
+  return true;
 }
 
 }  // namespace
@@ -986,7 +1109,9 @@ int main(int argc, char **argv)
   {
     const BodySpec &spec = scenario.bodies[i];
     SetStage("parsing body " + spec.name);
-    const sdf::Errors errs = bodyRoots[i].LoadSdfString(BodySdf(spec));
+    const sdf::Errors errs = spec.kind == BodyKind::MODEL ?
+        bodyRoots[i].Load(spec.file, config) :
+        bodyRoots[i].LoadSdfString(BodySdf(spec));
     if (!errs.empty() || bodyRoots[i].Model() == nullptr)
     {
       for (const auto &e : errs)
@@ -1024,6 +1149,18 @@ int main(int argc, char **argv)
           std::cerr << "physics_probe: robot joints were not built\n";
           return 2;
         }
+      b.leftRate = b.spec.left / kWheelR;
+      b.rightRate = b.spec.right / kWheelR;
+    }
+    else if (b.spec.kind == BodyKind::MODEL)
+    {
+      std::string err;
+      if (!DriveModel(*bodyModels[i], bm, b, err))
+      {
+        std::cerr << "physics_probe: model " << b.spec.file << ": " << err
+                  << "\n";
+        return 2;
+      }
     }
     else
     {
@@ -1066,13 +1203,28 @@ int main(int argc, char **argv)
       SetStage("stepping");
     for (auto &b : g_bodies)
     {
-      if (b.spec.kind != BodyKind::ROBOT)
+      if (b.spec.kind != BodyKind::ROBOT && b.spec.kind != BodyKind::MODEL)
         continue;
       const bool on = tNow >= b.spec.start;
+      if (b.spec.kind == BodyKind::MODEL)
+      {
+        // DiffDrive.cc PreUpdate: the limited speeds, then each side's rate.
+        auto toward = [dt](double _now, double _goal, double _accel)
+        {
+          const double step = _accel * dt;
+          return std::max(_now - step, std::min(_now + step, _goal));
+        };
+        b.linear = toward(b.linear, on ? b.spec.linear : 0.0, b.linearAccel);
+        b.angular =
+            toward(b.angular, on ? b.spec.angular : 0.0, b.angularAccel);
+        const double turn = b.angular * b.separation / 2;
+        b.leftRate = (b.linear - turn) / b.radius;
+        b.rightRate = (b.linear + turn) / b.radius;
+      }
       for (auto &j : b.leftJoints)
-        j->SetVelocityCommand(0, on ? b.spec.left / kWheelR : 0.0);
+        j->SetVelocityCommand(0, on ? b.leftRate : 0.0);
       for (auto &j : b.rightJoints)
-        j->SetVelocityCommand(0, on ? b.spec.right / kWheelR : 0.0);
+        j->SetVelocityCommand(0, on ? b.rightRate : 0.0);
     }
     world->Step(output, state, input);
     stepsRun = step;
@@ -1199,7 +1351,8 @@ int main(int argc, char **argv)
     const Body &b = g_bodies[i];
     const auto frame = b.link->FrameDataRelativeToWorld();
     const char *kind = b.spec.kind == BodyKind::SPHERE ? "sphere" :
-        (b.spec.kind == BodyKind::BOX ? "box" : "robot");
+        (b.spec.kind == BodyKind::BOX ? "box" :
+        (b.spec.kind == BodyKind::ROBOT ? "robot" : "model"));
     o << (i ? ",\n  " : "\n  ") << "{\"name\": " << Str(b.spec.name)
       << ", \"kind\": " << Str(kind)
       << ", \"initial_pose\": " << PoseJson(b.initial)

@@ -3,6 +3,7 @@ the progress bars (tqdm, on stderr)."""
 
 from __future__ import annotations
 
+import json
 import math
 import shlex
 import sys
@@ -12,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 from scan2terrain.texts import minus
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from scan2terrain.types import ScanCounts
     from scan2terrain.world.folder import Result
 
@@ -89,27 +92,34 @@ def _rate(points: int, start: float) -> str:
     return f"{points / elapsed / 1e6:.2f} M points/s"
 
 
-def spawn_lines(simulator: str, pose: tuple[float, ...]) -> list[str]:
-    """Where to spawn a robot (spawn.yaml), and the commands that put ROBOT.sdf there."""
+def spawn_lines(simulator: str, pose: tuple[float, ...], robot: Path | None) -> list[str]:
+    """Where to spawn a robot (spawn.yaml), and the commands that put the folder's robot
+    (``robot``, its model file for this simulator; None: a ``ROBOT.sdf`` of the user's) there."""
     x, y, z, _, _, yaw = (f"{v:g}" for v in pose)
-    head = f"    spawn a robot at x={x} y={y} z={z} yaw={yaw} (spawn.yaml), e.g.:"
+    which = "e.g.:" if robot is None else "e.g. the folder's robot/:"
+    head = f"    spawn a robot at x={x} y={y} z={z} yaw={yaw} (spawn.yaml), {which}"
+    path = "ROBOT.sdf" if robot is None else str(robot.absolute())
+    model = shlex.quote(path)
     if simulator == "gz":
         qz, qw = math.sin(pose[5] / 2), math.cos(pose[5] / 2)
+        # In the request the path is a protobuf text string: quoted for it, and the whole
+        # request quoted once more for the shell.
+        name = json.dumps(path)
         req = (
-            f'sdf_filename: "ROBOT.sdf", name: "robot", pose: {{position: {{x: {x}, y: {y},'
+            f'sdf_filename: {name}, name: "robot", pose: {{position: {{x: {x}, y: {y},'
             f" z: {z}}}, orientation: {{z: {qz:.6g}, w: {qw:.6g}}}}}"
         )
         return [
             head,
             "      gz service -s /world/scan2terrain/create --reqtype gz.msgs.EntityFactory"
-            f" --reptype gz.msgs.Boolean --timeout 5000 --req '{req}'",
-            "      ros2 run ros_gz_sim create -world scan2terrain -file ROBOT.sdf -name robot"
+            f" --reptype gz.msgs.Boolean --timeout 5000 --req {shlex.quote(req)}",
+            f"      ros2 run ros_gz_sim create -world scan2terrain -file {model} -name robot"
             f" -x {x} -y {y} -z {z} -Y {yaw}",
         ]
     return [
         head,
-        f"      gz model --spawn-file=ROBOT.sdf --model-name=robot -x {x} -y {y} -z {z} -Y {yaw}",
-        "      rosrun gazebo_ros spawn_model -sdf -file ROBOT.sdf -model robot"
+        f"      gz model --spawn-file={model} --model-name=robot -x {x} -y {y} -z {z} -Y {yaw}",
+        f"      rosrun gazebo_ros spawn_model -sdf -file {model} -model robot"
         f" -x {x} -y {y} -z {z} -Y {yaw}",
     ]
 
@@ -163,7 +173,7 @@ def report(result: Result) -> str:
         if w.map_yaml is not None:
             lines.append(f"    navigation map lined up with this world: {w.map_yaml}")
         if w.spawn is not None:
-            lines += spawn_lines(p.simulator, w.spawn)
+            lines += spawn_lines(p.simulator, w.spawn, w.robot)
     if result.preview is not None:
         lines.append(f"  preview ({result.preview_label}): {result.preview}")
     if result.preview3d is not None:

@@ -22,6 +22,7 @@ from scan2terrain.exporters import mapserver as map_export
 from scan2terrain.exporters import sdf
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
 from scan2terrain.exporters.output import MARKER, OutputDir, atomic_output
+from scan2terrain.exporters.robot import MODEL_FILES, ROBOT_DIR, robot_files
 from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
 from scan2terrain.types import (
     OccupancyGrid,
@@ -71,6 +72,8 @@ class WrittenWorld:
     map_tiles: tuple[Path, ...] = ()
     #: Where to spawn a robot, in this world's frame: (x, y, z, roll, pitch, yaw).
     spawn: tuple[float, float, float, float, float, float] | None = None
+    #: The folder's ready robot for this simulator (robot/model_<sim>.sdf), or None.
+    robot: Path | None = None
 
 
 @dataclass
@@ -178,6 +181,9 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
             first = folder.worlds[0]
             picture = pool.submit(lambda: preview3d(first.collisions(), first.spawn))
         _write_map_pgm(od, cfg, folder.map_out)
+        # robot/: the ready robot, a model file for each simulator the folder has a world for.
+        sims = [part.placement.simulator for part in folder.worlds]
+        robot = {rel: od.write(rel, data) for rel, data in robot_files(sims).items()}
         for part in folder.worlds:
             sim = part.placement.simulator
             for rel, data in part.files.items():
@@ -186,8 +192,9 @@ def write_world_folder(folder: WorldFolder, out: Path, *, overwrite: bool) -> Re
             yamls = _write_map_yaml(
                 od, cfg, folder.map_out, sim=sim, offset=part.map_offset, comment=part.comment
             )
+            model = robot.get(f"{ROBOT_DIR}/{MODEL_FILES[sim]}")
             result.worlds.append(
-                _world_output(part.placement, world, out / "models", yamls, part.spawn)
+                _world_output(part.placement, world, out / "models", yamls, part.spawn, model)
             )
         if picture is not None:
             result.preview3d = od.write(PREVIEW3D_FILE, picture.result())
@@ -221,10 +228,11 @@ def _world_output(
     models: Path,
     yamls: tuple[Path, ...],
     spawn: tuple[float, float, float, float, float, float],
+    robot: Path | None,
 ) -> WrittenWorld:
     if len(yamls) == 1:
-        return WrittenWorld(p, world, models, yamls[0], spawn=spawn)
-    return WrittenWorld(p, world, models, None, yamls, spawn=spawn)
+        return WrittenWorld(p, world, models, yamls[0], spawn=spawn, robot=robot)
+    return WrittenWorld(p, world, models, None, yamls, spawn=spawn, robot=robot)
 
 
 def spawn_pose(
