@@ -20,10 +20,10 @@ import base64
 import json
 import math
 import struct
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,6 +35,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from scan2terrain.types import Transform
+
+if TYPE_CHECKING:
+    from scan2terrain.readers.bag import Bag
 
 Fmt = Literal["ros1", "sqlite3", "mcap"]
 FORMATS: tuple[Fmt, ...] = ("ros1", "sqlite3", "mcap")
@@ -154,6 +157,28 @@ def write_bag(
                 conns[key] = writer.add_connection(topic, msgtype, typestore=ts)
             writer.write(conns[key], int(t_ns), serialize(build(ts, msgtype, msg), msgtype))
     return path
+
+
+# --- messages read back, typed Any in this one place ---------------------------------------------
+# rosbags makes a message's class at run time from its definition (per typestore, per bag), so
+# mypy cannot know its fields: ``Bag.messages`` and ``Typestore.deserialize_*`` say ``object``.
+# A test knows what it wrote or recorded, and reads fields (``msg.header.stamp.sec``) directly;
+# these two helpers hand it the message as ``Any`` on purpose rather than a cast at every use.
+
+
+def ros_msg(msg: object) -> Any:
+    """``msg`` unchanged, typed ``Any``: a message object rosbags generated (see above)."""
+    return msg
+
+
+def read_messages(
+    bag: Bag,
+    topics: str | Iterable[str],
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+) -> Iterator[tuple[str, int, Any]]:
+    """``bag.messages(...)`` unchanged, with each message typed ``Any`` (see :func:`ros_msg`)."""
+    return bag.messages(topics, start_ns, end_ns)
 
 
 # --- message builders (dicts, format-neutral) ----------------------------------------------------
@@ -382,7 +407,8 @@ def cast_rays(
     origins: NDArray[np.float64], angles: NDArray[np.float64], segments: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Distance along each 2D ray (K, B) to the first segment it meets (inf if none)."""
-    return segment_distances(origins, angles, segments).min(axis=-1)  # type: ignore[no-any-return]
+    nearest: NDArray[np.float64] = segment_distances(origins, angles, segments).min(axis=-1)
+    return nearest
 
 
 def cast_rays_3d(
@@ -404,7 +430,8 @@ def cast_rays_3d(
     t = np.where((z >= 0) & (z <= heights[None, :]), t, np.inf).min(axis=-1)
     with np.errstate(divide="ignore"):
         floor = np.where(tan_e[:, 0] < 0, origin[2] / -tan_e[:, 0], np.inf)
-    return np.minimum(t, floor)  # type: ignore[no-any-return]
+    first: NDArray[np.float64] = np.minimum(t, floor)
+    return first
 
 
 @dataclass(frozen=True)
@@ -866,8 +893,8 @@ def ros_to_foxglove(msgtype: str, msg: Any, *, split_tf: bool = False) -> list[t
     if msgtype == "sensor_msgs/msg/PointCloud2":
         assert not msg.is_bigendian
         step, width, height = int(msg.point_step), int(msg.width), int(msg.height)
-        rows = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-        rows = rows[: height * int(msg.row_step)].reshape(height, int(msg.row_step))
+        flat = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+        rows = flat[: height * int(msg.row_step)].reshape(height, int(msg.row_step))
         data = np.ascontiguousarray(rows[:, : width * step]).tobytes()
         fields = [
             {"name": f.name, "offset": int(f.offset), "type": _FOXGLOVE_NUMERIC[int(f.datatype)]}

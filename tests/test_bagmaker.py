@@ -24,6 +24,7 @@ from tests.bagmaker import (
     occupancy_grid_msg,
     odometry_msg,
     pointcloud2_msg,
+    read_messages,
     synthetic_room,
     tf_msg,
     typestore,
@@ -120,7 +121,7 @@ def test_every_builder_round_trips(tmp_path: Path, fmt: Fmt) -> None:
         }
         assert bag.skipped == {}
         assert (bag.start_ns, bag.end_ns) == (T0 + 10, T0 + 50)
-        got = {topic: (t, msg) for topic, t, msg in bag.messages(list(bag.topics))}
+        got = {topic: (t, msg) for topic, t, msg in read_messages(bag, list(bag.topics))}
     assert [got[m[0]][0] for m in messages] == [m[2] for m in messages]
     scan = got["/scan"][1]
     assert stamp_ns(scan) == T0
@@ -183,7 +184,7 @@ def test_room_scans_agree_across_formats(tmp_path: Path) -> None:
                 "/tf": 40,
                 "/tf_static": 1,
             }
-            ranges[fmt] = np.stack([m.ranges for _, _, m in bag.messages("/scan")])
+            ranges[fmt] = np.stack([m.ranges for _, _, m in read_messages(bag, "/scan")])
     np.testing.assert_array_equal(ranges["ros1"], ranges["sqlite3"])
     np.testing.assert_array_equal(ranges["ros1"], ranges["mcap"])
 
@@ -198,8 +199,7 @@ def test_room_tf_tree_gives_the_true_sensor_pose(tmp_path: Path, variant: Any) -
     scans: list[tuple[int, str]] = []
     with open_bag(path) as bag:
         topics = ["/tf", "/tf_static", room.scan_topic]
-        for topic, _, msg in bag.messages(topics):
-            m: Any = msg
+        for topic, _, m in read_messages(bag, topics):
             if topic == room.scan_topic:
                 scans.append((stamp_ns(m), m.header.frame_id))
                 continue
@@ -209,7 +209,8 @@ def test_room_tf_tree_gives_the_true_sensor_pose(tmp_path: Path, variant: Any) -
                 if topic == "/tf_static":
                     static[key] = tf_pose(t)
                 else:
-                    edges[(*key, stamp_ns(t))] = tf_pose(t)
+                    parent, child = key
+                    edges[(parent, child, stamp_ns(t))] = tf_pose(t)
     slash = "/" if variant == "slashes" else ""
     assert raw_names == {slash + n for n in ("map", "odom", "base_link", room.sensor_frame)}
     assert [s for s, _ in scans] == room.stamps_ns.tolist()
@@ -250,7 +251,7 @@ def test_room_tf_gap_and_odom_variants(tmp_path: Path) -> None:
     odom = synthetic_room("odom", n_scans=30)
     with open_bag(odom.write(tmp_path / "odom", "sqlite3")) as bag:
         assert set(bag.topics) == {"/odom", "/scan"}
-        msgs = [m for _, _, m in bag.messages("/odom")]
+        msgs = [m for _, _, m in read_messages(bag, "/odom")]
     assert {(m.header.frame_id, m.child_frame_id) for m in msgs} == {("odom", "base_link")}
     xy = np.array([[m.pose.pose.position.x, m.pose.pose.position.y] for m in msgs])
     np.testing.assert_allclose(xy, odom.base_poses[:, :2])
@@ -292,9 +293,9 @@ def test_carmen_bag_round_trip(tmp_path: Path, carmen_log: Any) -> None:
             "/tf_static": (TF_MESSAGE, 1),
         }
         assert bag.start_ns == log.stamps_ns[0]
-        scans = [m for _, _, m in bag.messages("/scan")]
-        tfs = [m.transforms[0] for _, _, m in bag.messages("/tf")]
-        mount = tf_pose(next(m for _, _, m in bag.messages("/tf_static")).transforms[0])
+        scans = [m for _, _, m in read_messages(bag, "/scan")]
+        tfs = [m.transforms[0] for _, _, m in read_messages(bag, "/tf")]
+        mount = tf_pose(next(m for _, _, m in read_messages(bag, "/tf_static")).transforms[0])
     np.testing.assert_array_equal(np.stack([s.ranges for s in scans]), log.ranges)
     assert [stamp_ns(s) for s in scans] == log.stamps_ns.tolist()
     for k in (0, 100, 198):

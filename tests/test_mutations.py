@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.bagmaker import ros_msg
 from tests.fixtures import (
     AUTZEN,
     AUTZEN_CSV,
@@ -475,7 +476,8 @@ def mcap_records(data: bytes, start: int, end: int) -> Iterator[tuple[int, int, 
 
 def _after_string(data: bytes, at: int) -> int:
     """The offset after the uint32-prefixed string (or map, or array) at ``at``."""
-    return at + 4 + struct.unpack_from("<I", data, at)[0]
+    (size,) = struct.unpack_from("<I", data, at)
+    return at + 4 + int(size)
 
 
 def mcap_fields(data: bytes, pos: int, op: int) -> list[tuple[str, int, str, str]]:
@@ -686,7 +688,7 @@ def laz14_file() -> bytes:
     """A LAS 1.4 point format 6 LAZ (LASzip's layered chunks, a 64-bit point count)."""
     import io
 
-    import laspy
+    import laspy  # type: ignore[import-untyped]
 
     pts = points(500)
     las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
@@ -734,7 +736,7 @@ def pcd_compressed(folder: Path) -> tuple[Path, Path]:
 
     cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(points(400)))
     path = folder / "compressed.pcd"
-    assert open3d.io.write_point_cloud(str(path), cloud, write_ascii=False, compressed=True)
+    assert open3d.io.write_point_cloud(path, cloud, write_ascii=False, compressed=True)
     assert b"DATA binary_compressed" in path.read_bytes()[:400]
     return path, path
 
@@ -893,7 +895,8 @@ def png_mutations(data: bytes, rng: random.Random) -> list[Mutation]:
         "big": (20_000, 20_000),
     }.items():
         out.append((f"ihdr-{name}", png_with_ihdr(data, w, h)))
-    out.append(("ihdr-depth16", png_with_ihdr(data, *struct.unpack_from(">II", data, 16), 16)))
+    width, height = struct.unpack_from(">II", data, 16)
+    out.append(("ihdr-depth16", png_with_ihdr(data, width, height, 16)))
     out.append(("ihdr-badcrc", data[:16] + b"\0\0\1\0" + data[20:]))
     out += flips(data, rng, 3, lo=idat + 8)
     out += splices(data, rng, 2, lo=idat)
@@ -1380,9 +1383,9 @@ def embark_bag(folder: Path) -> tuple[Path, Path]:
                 channels[channel.id] = writer.register_channel(
                     channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
                 )
-            data = msg.data
+            data: bytes | memoryview = msg.data
             if schema.name == "sensor_msgs/msg/PointCloud2":
-                cloud = ts.deserialize_cdr(data, schema.name)
+                cloud = ros_msg(ts.deserialize_cdr(data, schema.name))
                 rows = np.frombuffer(cloud.data, np.uint8).reshape(-1, cloud.point_step)
                 rows = rows[:: max(1, len(rows) // 2000)][:2000]
                 cloud = dataclasses.replace(

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers.bag import (
@@ -28,7 +29,7 @@ from scan2terrain.readers.bag import (
     open_bag,
     resolve_time,
 )
-from tests.bagmaker import synthetic_room, write_bag
+from tests.bagmaker import read_messages, synthetic_room, write_bag
 from tests.fixtures import (
     BAGS,
     CCNY,
@@ -192,7 +193,7 @@ def test_sick_scan_cloud_and_tf_with_slashes() -> None:
 
 def test_embark_cloud_layout_and_odometry() -> None:
     with open_bag(EMBARK_ROS1) as bag:
-        clouds = [m for _, _, m in bag.messages("/luminar_pointcloud")]
+        clouds = [m for _, _, m in read_messages(bag, "/luminar_pointcloud")]
         odom = first(bag, "/base_pose_ground_truth")
         scan = first(bag, "/base_scan")
     assert clouds[0].width == 35707
@@ -227,7 +228,7 @@ def test_fuse_leg_tracker_and_ccny_scans() -> None:
 
 def test_ccny_broken_index_is_rebuilt_from_the_chunks() -> None:
     with opened(CCNY, "rebuilt it from 2 chunk") as bag:
-        scans = [(t, m) for _, t, m in bag.messages("/scan")]
+        scans = [(t, m) for _, t, m in read_messages(bag, "/scan")]
         assert bag.frame_ids("/scan") == {"laser"}  # recorded as "/laser"
     assert len(scans) == 360
     t, scan = scans[0]
@@ -331,9 +332,10 @@ def test_nav2_whole_file_zstd_has_no_usable_topic(tmp_path: Path) -> None:
         assert {t: i.count for t, i in bag.topics.items()} == dict.fromkeys(
             ["/clock", "/cmd_vel_smoothed", "/local_costmap/costmap"], 231
         )
+        assert isinstance(bag._reader, AnyReader)
         temp = bag._reader.paths[0]  # the decompressed copy
-        assert Path(temp).is_file()
-    assert not Path(temp).exists()
+        assert isinstance(temp, Path) and temp.is_file()
+    assert not temp.exists()
 
 
 def test_standalone_storage_files_and_metadata_path(tmp_path: Path) -> None:
@@ -457,12 +459,12 @@ def test_a_topic_is_named_with_or_without_its_leading_slash(tmp_path: Path) -> N
             assert plan.reasons[0] == "topics /scan: chosen (--topic)"
         twice = plan_bag(bag, ScansConfig(topics=["scan", "/scan"]))
         assert twice.scan_topics == ["/scan"]  # one topic, read once
-    fixed = {"poses": "fixed", "pose": [0.0] * 6}
     with open_bag(_foxglove_scans(tmp_path / "fg.mcap", ["scan"])) as bag:
         assert list(bag.topics) == ["scan"]
         for given in ("scan", "/scan"):
             assert bag.require(given).name == "scan"
-            plan = plan_bag(bag, ScansConfig(topics=[given], **fixed), max_range=10.0)
+            fixed = ScansConfig(topics=[given], poses="fixed", pose=[0.0] * 6)
+            plan = plan_bag(bag, fixed, max_range=10.0)
             assert plan.scan_topics == ["scan"]
         with pytest.raises(InputError, match="no topic '/points'"):
             bag.require("/points")

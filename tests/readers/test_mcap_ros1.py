@@ -21,7 +21,13 @@ from mcap.writer import Writer as McapWriter
 from scan2terrain.errors import InputError
 from scan2terrain.readers._mcap import McapFile, mcap_profile
 from scan2terrain.readers.bag import BagWarning, open_bag
-from tests.bagmaker import LAYOUTS, first_chunk_data, one_message_mcap, ros1_bag_to_mcap
+from tests.bagmaker import (
+    LAYOUTS,
+    first_chunk_data,
+    one_message_mcap,
+    read_messages,
+    ros1_bag_to_mcap,
+)
 from tests.fixtures import EMBARK_MCAP, EMBARK_ROS1, FUSE
 
 
@@ -63,11 +69,11 @@ def test_ros1_mcap_pointclouds_read_as_the_bag(tmp_path: Path, layout: str) -> N
     mcap = rewrite(EMBARK_ROS1, tmp_path, layout)
     with open_bag(EMBARK_ROS1) as a, open_bag(mcap) as b:
         assert b.topics == a.topics
-        got = [m for _, _, m in b.messages("/luminar_pointcloud")]
-        want = [m for _, _, m in a.messages("/luminar_pointcloud")]
+        got = [m for _, _, m in read_messages(b, "/luminar_pointcloud")]
+        want = [m for _, _, m in read_messages(a, "/luminar_pointcloud")]
     assert len(got) == len(want) > 0
     for x, y in zip(got, want, strict=True):
-        assert bytes(x.data) == bytes(y.data) and repr(x.fields) == repr(y.fields)  # type: ignore[attr-defined]
+        assert bytes(x.data) == bytes(y.data) and repr(x.fields) == repr(y.fields)
 
 
 # --- what is refused ----------------------------------------------------------------------------
@@ -132,8 +138,8 @@ def test_unknown_schema_encoding_beside_ros1_is_skipped_with_a_warning(tmp_path:
         bag = open_bag(path)
     with bag:
         assert "/points" in bag.skipped and "/thing" not in bag.skipped
-        ((_, _, msg),) = list(bag.messages("/thing"))
-        assert msg.x == 1  # type: ignore[attr-defined]
+        ((_, _, msg),) = list(read_messages(bag, "/thing"))
+        assert msg.x == 1
         assert bag.topics["/thing"].msgtype == "pkg/msg/Thing"
     assert len(caught) == 1 and "skipping topics: /points" in str(caught[0].message)
 

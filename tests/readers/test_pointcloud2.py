@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from scan2terrain.errors import InputError
 from scan2terrain.readers.pointcloud2 import pointcloud2_fields, pointcloud2_xyz
+from tests.bagmaker import ros_msg
 
 #: PointField datatype -> (struct code, numpy type, a value range that type holds).
 TYPES: dict[int, tuple[str, str, tuple[float, float]]] = {
@@ -122,7 +123,7 @@ def values(datatype: int, n: int, count: int = 1, seed: int = 0) -> np.ndarray:
     if TYPES[datatype][1][0] == "f":
         v = rng.uniform(lo, hi, (n, count)).astype(TYPES[datatype][1])
     else:
-        v = rng.integers(lo, hi, (n, count), endpoint=True).astype(TYPES[datatype][1])
+        v = rng.integers(int(lo), int(hi), (n, count), endpoint=True).astype(TYPES[datatype][1])
     return v if count > 1 else v[:, 0].copy()
 
 
@@ -324,7 +325,7 @@ def test_real_rosbags_message_round_trip() -> None:
         data=np.array(stand_in.data, dtype=np.uint8),
         is_dense=False,
     )
-    back = ts.deserialize_cdr(ts.serialize_cdr(msg, msg.__msgtype__), msg.__msgtype__)
+    back = ros_msg(ts.deserialize_cdr(ts.serialize_cdr(msg, msg.__msgtype__), msg.__msgtype__))
     assert isinstance(back.data, np.ndarray) and back.data.dtype == np.uint8
     got = pointcloud2_xyz(back)
     assert got.shape == (11, 3)

@@ -775,7 +775,7 @@ def test_tf_samples_beyond_the_earth_are_counted_not_used() -> None:
     buf.add("odom", "base_link", 0, (0, 0, 0), (0, 0, 0, 1))
     buf.add("odom", "base_link", S // 2, (3.5e76, 0, 0), (0, 0, 0, 1))
     buf.add("odom", "base_link", S, (2, 0, 0), (0, 0, 0, 1))
-    buf.add_many("base_link", "laser", [0, S, 2 * S], [[0, 0, 1e9], [0, 0, -2e9], [0, 0, 1]],
+    buf.add_many("base_link", "laser", [0, S, 2 * S], [[0.0, 0, 1e9], [0.0, 0, -2e9], [0.0, 0, 1]],
                  [[0, 0, 0, 1]] * 3)  # fmt: skip
     assert buf.rejected == {"translation beyond 1e+09 m": 2}
     assert "tf: 2 sample(s) ignored: translation beyond 1e+09 m" in buf.problems()
@@ -786,4 +786,4 @@ def test_tf_samples_beyond_the_earth_are_counted_not_used() -> None:
 
 def test_a_track_beyond_the_earth_is_refused() -> None:
     with pytest.raises(ValueError, match=r"within 1e\+09 m, not -2e\+09 \(row 2, z\)"):
-        PoseTrack([0, 1], [[0, 0, 0], [0, 0, -2e9]], [[0, 0, 0, 1]] * 2)
+        PoseTrack([0, 1], [[0.0, 0, 0], [0.0, 0, -2e9]], [[0, 0, 0, 1]] * 2)
