@@ -29,7 +29,7 @@ import shutil
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -230,6 +230,21 @@ def _tuple(values: list[Any]) -> tuple[float, ...]:
     return tuple(float("nan") if v is None else float(v) for v in values)
 
 
+def _xyz(values: list[Any]) -> tuple[float, float, float]:
+    x, y, z = _tuple(values)
+    return x, y, z
+
+
+def _rgba(values: list[Any]) -> tuple[float, float, float, float]:
+    r, g, b, a = _tuple(values)
+    return r, g, b, a
+
+
+def _pose(values: list[Any]) -> tuple[float, float, float, float, float, float]:
+    x, y, z, roll, pitch, yaw = _tuple(values)
+    return x, y, z, roll, pitch, yaw
+
+
 def _to_probe(entry: dict[str, Any], original_version: str) -> HeightmapProbe:
     path = entry.get("path")
     probe = HeightmapProbe(
@@ -237,13 +252,13 @@ def _to_probe(entry: dict[str, Any], original_version: str) -> HeightmapProbe:
         link=entry["link"],
         kind=entry["kind"],
         name=entry["name"],
-        pose=_tuple(entry["pose"]),  # type: ignore[arg-type]
+        pose=_pose(entry["pose"]),
         pose_method=entry["pose_method"],
         uri=entry["uri"],
         sdf_file=entry["sdf_file"],
         path=Path(path) if path else None,
-        size=_tuple(entry["size"]),  # type: ignore[arg-type]
-        pos=_tuple(entry["pos"]),  # type: ignore[arg-type]
+        size=_xyz(entry["size"]),
+        pos=_xyz(entry["pos"]),
         sampling=int(entry["sampling"]),
         use_terrain_paging=bool(entry["use_terrain_paging"]),
         textures=int(entry["textures"]),
@@ -256,7 +271,7 @@ def _to_probe(entry: dict[str, Any], original_version: str) -> HeightmapProbe:
     probe.image_height = int(entry["image_height"])
     probe.image_bpp = int(entry["image_bpp"])
     probe.vert_size = int(entry["vert_size"])
-    probe.scale = _tuple(entry["scale"])  # type: ignore[assignment]
+    probe.scale = _xyz(entry["scale"])
     # ImageHeightmap::MaxElevation() as gz-common returned it; None when the probe did
     # not call it (16-bit images over 129x129: the call is known to fail there and
     # logs one line per pixel). max_elevation is what scale.z was computed from.
@@ -315,22 +330,22 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
         link=entry["link"],
         kind=entry["kind"],
         name=entry["name"],
-        pose=_tuple(entry["pose"]),  # type: ignore[arg-type]
+        pose=_pose(entry["pose"]),
         pose_method=entry["pose_method"],
         type=entry["type"],
     )
     if "size" in entry:
         shape.size = _tuple(entry["size"])
     if "normal" in entry:
-        shape.normal = _tuple(entry["normal"])  # type: ignore[assignment]
+        shape.normal = _xyz(entry["normal"])
     if shape.type == "mesh":
         shape.uri = entry["uri"]
         shape.path = Path(entry["path"]) if entry.get("path") else None
-        shape.scale = _tuple(entry["scale"])  # type: ignore[assignment]
+        shape.scale = _xyz(entry["scale"])
         shape.mesh_loaded = bool(entry.get("mesh_loaded", False))
         if shape.mesh_loaded:
-            shape.mesh_min = _tuple(entry["mesh_min"])  # type: ignore[assignment]
-            shape.mesh_max = _tuple(entry["mesh_max"])  # type: ignore[assignment]
+            shape.mesh_min = _xyz(entry["mesh_min"])
+            shape.mesh_max = _xyz(entry["mesh_max"])
             raw = np.fromfile(entry["triangles_file"], dtype="<f8")
             shape.triangles = raw.reshape(-1, 3, 3)
             shape.submeshes = [_to_submesh(s) for s in entry.get("submeshes", [])]
@@ -342,8 +357,8 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
         if shape.extrusion in ("crashed", "timeout"):
             shape.extrusion_signal = int(entry["extrusion_signal"])
         if shape.extrusion == "ok":
-            shape.mesh_min = _tuple(entry["mesh_min"])  # type: ignore[assignment]
-            shape.mesh_max = _tuple(entry["mesh_max"])  # type: ignore[assignment]
+            shape.mesh_min = _xyz(entry["mesh_min"])
+            shape.mesh_max = _xyz(entry["mesh_max"])
             raw = np.fromfile(entry["triangles_file"], dtype="<f8")
             shape.triangles = raw.reshape(-1, 3, 3)
     return shape
@@ -352,7 +367,7 @@ def _to_shape(entry: dict[str, Any]) -> ShapeProbe:
 def _to_submesh(entry: dict[str, Any]) -> SubMeshProbe:
     def colour(key: str) -> tuple[float, float, float, float] | None:
         value = entry.get(key)
-        return None if value is None else _tuple(value)  # type: ignore[return-value]
+        return None if value is None else _rgba(value)
 
     material = entry.get("material")
     return SubMeshProbe(
@@ -414,13 +429,20 @@ def _yaw_only(pose: tuple[float, ...], what: str) -> float:
     return yaw
 
 
+@overload
+def terrain_height(probe: HeightmapProbe, x: float, y: float, simulator: Simulator) -> float: ...
+@overload
+def terrain_height(
+    probe: HeightmapProbe, x: np.ndarray, y: np.ndarray, simulator: Simulator
+) -> np.ndarray: ...
 def terrain_height(
     probe: HeightmapProbe, x: Any, y: Any, simulator: Simulator
 ) -> np.ndarray | float:
     """Ground height at WORLD point(s) (x, y) as ``simulator`` places the field.
 
-    Vectorised over numpy arrays; NaN outside the field. Only collision probes carry
-    heights (physics only uses the collision).
+    Vectorised over numpy arrays (an array for arrays of points, a float for one point);
+    NaN outside the field. Only collision probes carry heights (physics only uses the
+    collision).
     """
     if probe.kind != "collision" or probe.heights is None or probe.vert_size is None:
         raise ValueError(f"{probe.model}/{probe.name}: not a collision probe with heights")

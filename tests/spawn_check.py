@@ -22,9 +22,17 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from numpy.typing import NDArray
 
 from scan2terrain.grids.spawn import FOOTPRINT, LEVEL_RISE, LEVEL_SLOPE
-from tests.gazebo_harness import ShapeProbe, probe_shapes, probe_world, terrain_height
+from scan2terrain.readers.world import SIMULATORS, Simulator
+from tests.gazebo_harness import (
+    HeightmapProbe,
+    ShapeProbe,
+    probe_shapes,
+    probe_world,
+    terrain_height,
+)
 
 #: The spawn pose is written with 3 decimals.
 ROUND = 1e-3
@@ -60,7 +68,7 @@ def spawn_ground(
     ground slab; voxel worlds' floor is the voxels on it)."""
     doc = spawn_doc(out)
     found = []
-    for sim in ("gz", "classic"):
+    for sim in SIMULATORS:
         entry = doc.get(sim)
         if not isinstance(entry, dict):
             continue
@@ -82,12 +90,15 @@ def spawn_ground(
     return found
 
 
-def _on_heightmaps(fields: list, sim: str, x: float, y: float, z: float) -> SpawnGround:  # type: ignore[type-arg]
+def _on_heightmaps(
+    fields: list[HeightmapProbe], sim: Simulator, x: float, y: float, z: float
+) -> SpawnGround:
     half = FOOTPRINT / 2
     xs, ys = [np.array([x - half, x + half])], [np.array([y - half, y + half])]
     for f in fields:
         # Every vertex line crossing the square: the interpolated surface's extremes are there.
         n = f.vert_size
+        assert n is not None, f.name
         step = f.size[0] / n if sim == "gz" else f.size[0] / (n - 1)
         ox, oy = (f.pose[0], f.pose[1]) if sim == "gz" else (0.0, 0.0)
         k = np.arange(n) - (n - 1) / 2
@@ -111,7 +122,9 @@ def _on_heightmaps(fields: list, sim: str, x: float, y: float, z: float) -> Spaw
     return SpawnGround(sim, z, lo, hi, problems)
 
 
-def _on_shapes(shapes: list[ShapeProbe], sim: str, x: float, y: float, z: float) -> SpawnGround:
+def _on_shapes(
+    shapes: list[ShapeProbe], sim: Simulator, x: float, y: float, z: float
+) -> SpawnGround:
     half = FOOTPRINT / 2
     problems = []
     tops = []
@@ -162,7 +175,9 @@ def _reach_into(tri: np.ndarray, x: float, y: float, half: float) -> np.ndarray:
     a vertical face, a segment in plan, has a zero-length edge, which separates nothing)."""
     h = half - TOUCH
     lo, hi = tri.min(axis=1), tri.max(axis=1)
-    apart = (lo[:, 0] >= x + h) | (hi[:, 0] <= x - h) | (lo[:, 1] >= y + h) | (hi[:, 1] <= y - h)
+    apart: NDArray[np.bool_] = (
+        (lo[:, 0] >= x + h) | (hi[:, 0] <= x - h) | (lo[:, 1] >= y + h) | (hi[:, 1] <= y - h)
+    )
     for k in range(3):
         edge = tri[:, (k + 1) % 3] - tri[:, k]
         normal = np.stack([-edge[:, 1], edge[:, 0]], axis=1)

@@ -33,6 +33,13 @@ def build(source: Path, out: Path, **overrides: object) -> Result:
     return dem.dem2world(source, out, cfg)
 
 
+def text_at(doc: etree._ElementTree, path: str) -> str:
+    """The text of the first element at ``path``, which must be there."""
+    text = doc.findtext(path)
+    assert text is not None, path
+    return text
+
+
 def sample_centres(dem: Dem) -> tuple[np.ndarray, np.ndarray]:
     """World x, y of every DEM sample (grid order), the DEM's centre at the origin."""
     rows, cols = dem.shape
@@ -121,14 +128,16 @@ def test_passthrough_world_references_the_geotiff(tmp_path: Path) -> None:
     (model_dir,) = (tmp_path / "w/models").glob("*_dem")
     assert (model_dir / "dem_squared.tif").read_bytes() == SFBAY.read_bytes()
     doc = etree.parse(str(model_dir / "model.sdf"))
-    uris = {u.text for u in doc.iter("uri") if u.getparent().tag == "heightmap"}
+    uris = {
+        u.text for u in doc.iter("uri") if (p := u.getparent()) is not None and p.tag == "heightmap"
+    }
     assert uris == {f"model://{model_dir.name}/dem_squared.tif"}
-    size = [float(v) for v in doc.find(".//collision//size").text.split()]
+    size = [float(v) for v in text_at(doc, ".//collision//size").split()]
     # gz-common's DEM world size, heights absolute (pose z 0, size.z = max - min).
     assert size[0] == pytest.approx(GZ_SFBAY["world_width"], rel=1e-3)
     assert size[1] == pytest.approx(GZ_SFBAY["world_height"], rel=1e-3)
     assert size[2] == pytest.approx(GZ_SFBAY["max"] - GZ_SFBAY["min"], rel=1e-3)
-    assert doc.find(".//collision/pose").text.split() == ["0.0"] * 6
+    assert text_at(doc, ".//collision/pose").split() == ["0.0"] * 6
     # SDFormat parses it strictly; gz-common 4 here cannot load a GeoTIFF as a heightmap.
     with pytest.raises(ProbeError, match="cannot load heightmap image"):
         probe_world(world, [tmp_path / "w/models"], tmp_path / "p")

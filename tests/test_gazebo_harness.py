@@ -7,6 +7,7 @@ Tiny worlds and images are written by hand into tmp_path; SDFormat 12 and gz-com
 from __future__ import annotations
 
 import math
+import shutil
 import signal
 from pathlib import Path
 
@@ -350,7 +351,7 @@ def test_classic_rejects_what_it_cannot_reproduce(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="sampling"):
         terrain_height(probe, 0.0, 0.0, "classic")
     with pytest.raises(ValueError, match="unknown simulator"):
-        terrain_height(probe, 0.0, 0.0, "bullet")  # type: ignore[arg-type]
+        terrain_height(probe, 0.0, 0.0, "bullet")  # type: ignore[call-overload]
 
 
 # --------------------------------------------------------------------------- strict
@@ -500,7 +501,7 @@ def test_missing_toolchain_raises_with_install_hint(
     from tests import gazebo_harness
 
     monkeypatch.setattr(gazebo_harness, "BUILD_ROOT", tmp_path / "build")
-    monkeypatch.setattr(gazebo_harness.shutil, "which", lambda _name: None)
+    monkeypatch.setattr(shutil, "which", lambda _name: None)  # the harness's shutil
     with pytest.raises(RuntimeError) as err:
         gazebo_harness.probe_binary()
     assert INSTALL_HINT in str(err.value)

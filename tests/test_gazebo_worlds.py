@@ -10,7 +10,9 @@ at the map-frame position of that cell: (x, y) in gz-sim, (x - cx, y - cy) in Ga
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from scan2terrain import grids
 from scan2terrain.commands import maps
 from scan2terrain.config import load_config
 from scan2terrain.readers import read_map_yaml
+from scan2terrain.readers.world import SIMULATORS
 from scan2terrain.world.folder import Result, WrittenWorld
 from tests.conftest import write_map
 from tests.fixtures import IMAGES, MAPS
@@ -27,7 +30,14 @@ from tests.gazebo_harness import probe_world, terrain_height
 from tests.world_checks import H, check_world
 
 
-def build(source: Path, out: Path, *, command: str = "map2world", **overrides: object) -> Result:
+def build(
+    source: Path,
+    out: Path,
+    overrides: Mapping[str, object] = MappingProxyType({}),
+    *,
+    command: str = "map2world",
+) -> Result:
+    """The world of ``source`` with config ``overrides`` (dotted keys, as ``--set`` takes)."""
     cfg = load_config(None, {"terrain.height": H, "world.geometry": "heightmap", **overrides})
     run = maps.map2world if command == "map2world" else maps.image2world
     return run(source, out, cfg)
@@ -36,7 +46,7 @@ def build(source: Path, out: Path, *, command: str = "map2world", **overrides: o
 @pytest.mark.parametrize("name", sorted(MAPS))
 def test_real_map_unfiltered_lands_in_the_map_frame(tmp_path: Path, name: str) -> None:
     """Raw map cells (no filter) against the world, through the ORIGINAL map YAML."""
-    result = build(MAPS[name], tmp_path / "w", **{"filter.enabled": False})
+    result = build(MAPS[name], tmp_path / "w", {"filter.enabled": False})
     _, grid = read_map_yaml(MAPS[name])
     meta_thresholds = grids.to_trinary(grid.data)
     checked = check_world(result, grid.with_data(meta_thresholds), tmp_path)
@@ -47,7 +57,7 @@ def test_real_map_unfiltered_lands_in_the_map_frame(tmp_path: Path, name: str) -
 def test_filtered_map_export_lines_up_with_the_world(tmp_path: Path, name: str) -> None:
     """The default filter, checked through the map_server YAML we write for each simulator."""
     result = build(
-        MAPS[name], tmp_path / "w", **{"terrain.unknown": "height", "terrain.unknown_height": 0.5}
+        MAPS[name], tmp_path / "w", {"terrain.unknown": "height", "terrain.unknown_height": 0.5}
     )
     for w in result.worlds:
         assert w.map_yaml is not None
@@ -78,7 +88,7 @@ def test_quarter_turn_yaw_lands_rotated(tmp_path: Path, yaw_deg: int) -> None:
     yaml_path = write_map(
         tmp_path / "m", pixels, resolution=0.1, origin=f"[2.5, -1.25, {math.radians(yaw_deg)!r}]"
     )
-    result = build(yaml_path, tmp_path / "w", **{"filter.enabled": False})
+    result = build(yaml_path, tmp_path / "w", {"filter.enabled": False})
     _, grid = read_map_yaml(yaml_path)
     assert grid.origin.yaw != 0
     checked = check_world(result, grid, tmp_path)
@@ -90,7 +100,7 @@ def test_arbitrary_yaw_lands_rotated(tmp_path: Path) -> None:
     pixels[10:16, 5:65] = 0
     pixels[20:45, 30:36] = 0
     yaml_path = write_map(tmp_path / "m", pixels, resolution=0.05, origin="[1.0, 2.0, 0.5236]")
-    result = build(yaml_path, tmp_path / "w", **{"filter.enabled": False})
+    result = build(yaml_path, tmp_path / "w", {"filter.enabled": False})
     _, grid = read_map_yaml(yaml_path)
     # Resampled, not permuted: cells well inside uniform areas must still be right.
     checked = check_world(result, grid, tmp_path, radius=2)
@@ -101,7 +111,7 @@ def test_upsampled_sixteen_bit_gz(tmp_path: Path) -> None:
     result = build(
         MAPS["tb3"],
         tmp_path / "w",
-        **{
+        {
             "filter.enabled": False,
             "terrain.upsample": 2,
             "terrain.bit_depth": 16,
@@ -117,8 +127,8 @@ def test_image_world_heights(tmp_path: Path) -> None:
     result = build(
         IMAGES["winding_valley"],
         tmp_path / "w",
+        {"filter.enabled": False, "image.resolution": 0.5, "terrain.height": 12.0},
         command="image2world",
-        **{"filter.enabled": False, "image.resolution": 0.5, "terrain.height": 12.0},
     )
     with Image.open(IMAGES["winding_valley"]) as im:
         src = np.flipud(np.asarray(im.convert("L"), dtype=float))
@@ -129,6 +139,7 @@ def test_image_world_heights(tmp_path: Path) -> None:
         _, probes = probe_world(w.world, [w.models], tmp_path / w.placement.simulator)
         (col,) = [p for p in probes if p.kind == "collision"]
         ox, oy = w.placement.offset
+        assert w.placement.simulator in SIMULATORS
         got = terrain_height(col, x - ox, y - oy, w.placement.simulator)
         np.testing.assert_allclose(got, src / 255 * 12.0, atol=0.01 * 12.0)
 
@@ -152,7 +163,7 @@ def test_gz_worlds_load_the_systems_a_robot_needs(tmp_path: Path, geometry: str)
     """Issue 25 item 11: a spawned robot's lidar published nothing (no Sensors system)."""
     from lxml import etree
 
-    result = build(MAPS["tb3"], tmp_path / "w", **{"world.geometry": geometry})
+    result = build(MAPS["tb3"], tmp_path / "w", {"world.geometry": geometry})
     for w in result.worlds:
         world = etree.parse(str(w.world)).getroot().find("world")
         assert world is not None

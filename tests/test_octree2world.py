@@ -90,7 +90,9 @@ def test_height_grid_world(tmp_path: Path) -> None:
     _, probes = probe_world(w.world, [w.models], tmp_path / "probe")
     (col,) = [p for p in probes if p.kind == "collision"]
     rows, cols = np.nonzero(stats.known)
-    x, y = stats.origin.transform((cols + 0.5) * 0.08, (rows + 0.5) * 0.08)
+    x, y = stats.origin.transform(
+        (cols.astype(np.float64) + 0.5) * 0.08, (rows.astype(np.float64) + 0.5) * 0.08
+    )
     got = terrain_height(col, x, y, "gz")
     want = stats.max_z[rows, cols]
     # Only cells whose neighbours share the height: Gazebo interpolates between vertices, and
@@ -223,7 +225,7 @@ def pruned_bt(path: Path) -> None:
         return node
 
     voxel = chain(7, ["occ", None, None, None, None, None, None, None])  # depth 8 .. 15
-    block = ["free"] * 7 + [voxel]  # the node at depth 7
+    block: list[object] = [*["free"] * 7, voxel]  # the node at depth 7
     data, count = encode(chain(7, block))  # root .. depth 6 above it
     head = f"# Octomap OcTree binary file\nid OcTree\nsize {count}\nres 0.1\ndata\n"
     path.write_bytes(head.encode() + data)

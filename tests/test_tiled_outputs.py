@@ -13,12 +13,15 @@ lies at the centre of its grid cell.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 from PIL import Image
 
 from scan2terrain.cli import COMMAND_DEFAULTS
@@ -42,12 +45,13 @@ ORIGIN = Pose2D(-3.0, 2.0, 0.0)
 RES = 0.5
 
 
-def rolling(rows: int, cols: int) -> np.ndarray:
+def rolling(rows: int, cols: int) -> NDArray[np.float32]:
     """Smooth hills, float32 metres, grid order."""
     yy, xx = np.mgrid[0:rows, 0:cols]
-    return (np.sin(xx / 7.0) * 1.5 + np.cos(yy / 5.0) + 0.3 * np.sin((xx + yy) / 3.0) + 3).astype(
-        np.float32
+    hills: NDArray[np.float64] = (
+        np.sin(xx / 7.0) * 1.5 + np.cos(yy / 5.0) + 0.3 * np.sin((xx + yy) / 3.0) + 3
     )
+    return hills.astype(np.float32)
 
 
 def config(**overrides: object) -> Config:
@@ -66,11 +70,12 @@ def config(**overrides: object) -> Config:
 def height_world(
     heights: np.ndarray,
     out: Path,
+    overrides: Mapping[str, object] = MappingProxyType({}),
     *,
     origin: Pose2D = ORIGIN,
     res: float = RES,
-    **overrides: object,
 ) -> Result:
+    """The world of ``heights`` with config ``overrides`` (dotted keys, as ``--set`` takes)."""
     grid = HeightGrid(heights, np.ones(heights.shape, dtype=bool), res, origin)
     cfg = config(**overrides)
     folder = maps.height_folder(grid, Path("hills.xyz"), cfg)
@@ -259,7 +264,7 @@ def test_tiled_height_world_has_no_seams(tmp_path: Path, bit_depth: int, samplin
     result = height_world(
         heights,
         tmp_path / "w",
-        **{"terrain.bit_depth": bit_depth, "world.sampling": sampling},
+        {"terrain.bit_depth": bit_depth, "world.sampling": sampling},
     )
     assert result.tiles == (3, 2) and result.heightmap_side == S
     assert result.size_z == pytest.approx(float(heights.max()))  # as one heightmap's size.z
@@ -282,7 +287,7 @@ def test_tiled_height_world_has_no_seams(tmp_path: Path, bit_depth: int, samplin
 def test_tiled_upsampled_terrain(tmp_path: Path) -> None:
     """terrain.upsample applies first: 20 x 12 cells x 3 = 60 x 36 samples, 2 x 2 tiles."""
     coarse = rolling(20, 12)
-    result = height_world(coarse, tmp_path / "w", **{"terrain.upsample": 3})
+    result = height_world(coarse, tmp_path / "w", {"terrain.upsample": 3})
     fine = np.repeat(np.repeat(coarse, 3, axis=0), 3, axis=1)
     assert result.tiles == (2, 2)
     check_tiled_terrain(result, tmp_path, fine, ORIGIN, RES / 3, bit_depth=8)
@@ -290,7 +295,7 @@ def test_tiled_upsampled_terrain(tmp_path: Path) -> None:
 
 def test_grid_that_fits_stays_one_heightmap(tmp_path: Path) -> None:
     heights = rolling(S, 20)
-    result = height_world(heights, tmp_path / "w", **{"world.simulator": "both"})
+    result = height_world(heights, tmp_path / "w", {"world.simulator": "both"})
     assert result.tiles == (1, 1) and len(result.worlds) == 2
     names = {p.name for p in (tmp_path / "w" / "models").iterdir()}
     assert names == {w.placement.model_name for w in result.worlds}
@@ -299,12 +304,12 @@ def test_grid_that_fits_stays_one_heightmap(tmp_path: Path) -> None:
 
 def test_classic_is_refused_and_nothing_written(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="Only one Heightmap can be created per Scene"):
-        height_world(rolling(40, 10), tmp_path / "w", **{"world.simulator": "classic"})
+        height_world(rolling(40, 10), tmp_path / "w", {"world.simulator": "classic"})
     assert list(tmp_path.iterdir()) == []
 
 
 def test_both_writes_gz_only_with_a_note(tmp_path: Path) -> None:
-    result = height_world(rolling(40, 10), tmp_path / "w", **{"world.simulator": "both"})
+    result = height_world(rolling(40, 10), tmp_path / "w", {"world.simulator": "both"})
     assert [w.placement.simulator for w in result.worlds] == ["gz"]
     assert any(n.startswith("Gazebo Classic world not written") for n in result.notes)
     assert not (tmp_path / "w" / "world_classic.world").exists()

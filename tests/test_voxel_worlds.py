@@ -22,6 +22,13 @@ from tests.physics_harness import drive_robot, drop_probes
 R = 0.1  # voxel side of the synthetic scene
 
 
+def _mesh(stl: Path) -> trimesh.Trimesh:
+    """An STL as trimesh loads it: one mesh (not a scene)."""
+    mesh = trimesh.load(stl)
+    assert isinstance(mesh, trimesh.Trimesh), stl.name
+    return mesh
+
+
 def _box(x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> np.ndarray:
     """Voxel keys (on the R lattice) filling a box given in metres."""
     axes = [np.arange(round(a / R), round(b / R)) for a, b in (x, y, z)]
@@ -73,7 +80,7 @@ def test_the_meshes_hold_exactly_the_voxels(built: tuple[Path, np.ndarray]) -> N
     probe = np.array([[1.5, 1.5, 0.4], [3.7, 0.5, 0.6], [5.05, 2.0, 1.0], [1.0, 3.0, 1.5]])
     outside = np.zeros(len(probe), bool)
     for stl in stls:
-        m = trimesh.load(stl)
+        m = _mesh(stl)
         assert m.is_watertight and m.is_winding_consistent, stl.name
         volume += m.volume
         inside |= m.contains((keys + 0.5) * R)
@@ -100,8 +107,11 @@ def test_gazebo_parses_the_world_and_loads_every_chunk(
     meshes = [s for s in shapes if s.type == "mesh"]
     assert len(meshes) == 2 * len(_stls(out))  # a collision and a visual per chunk
     assert all(s.mesh_loaded for s in meshes)
-    lo = np.min([s.mesh_min for s in meshes if s.kind == "collision"], axis=0)
-    hi = np.max([s.mesh_max for s in meshes if s.kind == "collision"], axis=0)
+    collisions = [s for s in meshes if s.kind == "collision"]
+    mins = [s.mesh_min for s in collisions if s.mesh_min is not None]
+    maxs = [s.mesh_max for s in collisions if s.mesh_max is not None]
+    assert len(mins) == len(maxs) == len(collisions)
+    lo, hi = np.min(mins, axis=0), np.max(maxs, axis=0)
     assert lo == pytest.approx([0, 0, -0.1], abs=2e-3)
     assert hi == pytest.approx([6, 4, 3.1], abs=2e-3)
 
@@ -134,7 +144,7 @@ def test_geb079_voxel_world(tmp_path: Path) -> None:
     stls = _stls(out)
     triangles = 0
     for stl in stls:
-        m = trimesh.load(stl)
+        m = _mesh(stl)
         assert m.is_watertight and m.is_winding_consistent, stl.name
         triangles += len(m.faces)
     voxels = 185673  # geb079's occupied voxels, runs expanded
@@ -203,7 +213,7 @@ def test_outliers_are_dropped_from_cloud_files(
             "0.1", "--outliers", "2", "--simulator", "gz"]  # fmt: skip
     assert main(args) == 0
     assert "20 statistical outliers removed" in capsys.readouterr().out
-    top = max(trimesh.load(s).bounds[1][2] for s in _stls(out))
+    top = max(_mesh(s).bounds[1][2] for s in _stls(out))
     assert top <= 0.1 + 1e-6  # only the plane's voxels are left
     target = tmp_path / "clean.xyz"
     assert main(["convert", str(cloud), str(target), "--outliers", "2", "-q"]) == 0
@@ -231,7 +241,7 @@ def test_coarser_voxels_are_octomaps_inner_nodes(
             "--voxel-size", "0.16", "--simulator", "gz"]  # fmt: skip
     assert main(args) == 0
     assert f"{len(coarse)} occupied voxels of 0.16 m" in capsys.readouterr().out
-    volume = sum(trimesh.load(s).volume for s in _stls(out))
+    volume = sum(_mesh(s).volume for s in _stls(out))
     assert volume == pytest.approx(len(coarse) * 0.16**3, rel=1e-3)
     _refused(capsys, [*args[:2], "-o", str(tmp_path / "x"), "--geometry", "voxels",
                       "--voxel-size", "0.1"], tmp_path / "x", "times a power of two")  # fmt: skip
@@ -305,7 +315,7 @@ def test_fr079_scans_become_a_closed_voxel_world(tmp_path: Path) -> None:
     volume = area = 0.0
     inside = np.zeros(len(centres), bool)
     for stl in _stls(out):
-        m = trimesh.load(stl)
+        m = _mesh(stl)
         assert m.is_watertight and m.is_winding_consistent, stl.name
         volume += m.volume
         area += m.area
@@ -327,7 +337,7 @@ def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
     stls = _stls(out)
     assert stls
     for stl in stls:
-        m = trimesh.load(stl)
+        m = _mesh(stl)
         assert m.is_watertight and m.is_winding_consistent
     assert (out / "octree.bt").is_file() and (out / "map" / "map_gz.yaml").is_file()
 
@@ -337,7 +347,7 @@ def test_bag2world_makes_voxel_worlds_too(tmp_path: Path) -> None:
 
 def _walls(out: Path) -> tuple[float, float, float]:
     """The voxel meshes' lowest and highest z and their volume."""
-    meshes = [trimesh.load(s) for s in _stls(out)]
+    meshes = [_mesh(s) for s in _stls(out)]
     assert all(m.is_watertight and m.is_winding_consistent for m in meshes)
     lo = min(float(m.bounds[0][2]) for m in meshes)
     hi = max(float(m.bounds[1][2]) for m in meshes)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from scan2terrain.readers.world import SIMULATORS
 from scan2terrain.types import OccupancyGrid
 from scan2terrain.world.folder import Result
 from tests.gazebo_harness import probe_world, terrain_height
@@ -35,7 +36,7 @@ def uniform(data: np.ndarray, radius: int = 1) -> np.ndarray:
 
 
 def cell_centres(grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
-    rows, cols = np.indices(grid.shape)
+    rows, cols = np.indices(grid.shape, dtype=np.float64)
     return grid.origin.transform((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
 
 
@@ -48,12 +49,13 @@ def check_world(
     unknown_level: float = 0.0,
 ) -> dict[str, int]:
     """Compare every world in ``result`` with ``reference`` (map frame); return cells checked."""
-    checked = {}
+    checked: dict[str, int] = {}
     expected_of = {100: H, 0: 0.0, -1: unknown_level}
     mask = uniform(reference.data, radius)
     x, y = cell_centres(reference)
     for w in result.worlds:
         sim = w.placement.simulator
+        assert sim in SIMULATORS
         version, probes = probe_world(w.world, [w.models], tmp / f"probe_{sim}")
         assert version  # parsed strictly by SDFormat
         (col,) = [p for p in probes if p.kind == "collision"]
@@ -64,6 +66,7 @@ def check_world(
             assert visuals[0].pos == pytest.approx(col.pose[:3])
         ox, oy = w.placement.offset
         got = terrain_height(col, x[mask] - ox, y[mask] - oy, sim)
+        assert isinstance(got, np.ndarray)
         want = np.vectorize(expected_of.get)(reference.data[mask])
         bad = np.abs(got - want) > 0.01 * H
         assert not bad.any(), (
@@ -78,6 +81,7 @@ def ground(result: Result, tmp: Path, x: np.ndarray, y: np.ndarray) -> np.ndarra
     """Ground height at world (x, y) in the one world of ``result``, as gz-common builds it."""
     (w,) = result.worlds
     sim = w.placement.simulator
+    assert sim in SIMULATORS
     version, probes = probe_world(w.world, [w.models], tmp / f"probe_{sim}")
     assert version  # parsed strictly by SDFormat
     (col,) = [p for p in probes if p.kind == "collision"]

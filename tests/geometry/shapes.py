@@ -48,6 +48,7 @@ def welded_watertight(mesh: Mesh) -> bool:
     import trimesh
 
     loaded = trimesh.load(io.BytesIO(stl_bytes(mesh)), file_type="stl", force="mesh")
+    assert isinstance(loaded, trimesh.Trimesh)
     return bool(loaded.is_watertight and loaded.is_winding_consistent)
 
 

@@ -126,6 +126,7 @@ def test_speckle_map_to_world(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert stls  # one per simulator
     for stl in stls:
         mesh = trimesh.load(stl, force="mesh")
+        assert isinstance(mesh, trimesh.Trimesh)
         assert mesh.is_watertight and mesh.is_winding_consistent
         # The wall cells' volume, less the slivers that the vertices at diagonal contacts
         # (thousands here) take off as they move 1 % of a cell into their own material.

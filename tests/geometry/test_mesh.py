@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import math
 import struct
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -281,30 +282,42 @@ def test_obj_reads_back_exactly(sample: Mesh) -> None:
     assert obj_bytes(sample) == text.encode()
 
 
+def _one(root: etree._Element, path: str) -> etree._Element:
+    """The first element at ``path``, which must be there."""
+    found = root.find(path)
+    assert found is not None, path
+    return found
+
+
+def _text(element: etree._Element) -> str:
+    assert element.text is not None, element.tag
+    return element.text
+
+
 def test_dae_reads_back_with_lxml(sample: Mesh) -> None:
     data = dae_bytes(sample, "walls 1")
     root = etree.fromstring(data)
     assert root.tag == f"{COLLADA}COLLADA" and root.get("version") == "1.4.1"
-    assert root.find(f"{COLLADA}asset/{COLLADA}up_axis").text == "Z_UP"
-    assert root.find(f"{COLLADA}asset/{COLLADA}unit").get("meter") == "1"
+    assert _one(root, f"{COLLADA}asset/{COLLADA}up_axis").text == "Z_UP"
+    assert _one(root, f"{COLLADA}asset/{COLLADA}unit").get("meter") == "1"
     geometries = root.findall(f"{COLLADA}library_geometries/{COLLADA}geometry")
     assert len(geometries) == 1 and geometries[0].get("id") == "walls_1-mesh"
     assert len(root.findall(f"{COLLADA}library_materials/{COLLADA}material")) == 1
     arrays_ = {
-        a.get("id"): np.array(a.text.split(), dtype=np.float64)
+        a.get("id"): np.array(_text(a).split(), dtype=np.float64)
         for a in root.iter(f"{COLLADA}float_array")
     }
     np.testing.assert_array_equal(
         arrays_["walls_1-positions-array"].reshape(-1, 3), sample.vertices
     )
     normals = arrays_["walls_1-normals-array"].reshape(-1, 3)
-    tri = root.find(f".//{COLLADA}triangles")
-    assert int(tri.get("count")) == len(sample.faces)
-    p = np.array(tri.find(f"{COLLADA}p").text.split(), dtype=np.int64).reshape(-1, 3, 2)
+    tri = _one(root, f".//{COLLADA}triangles")
+    assert int(tri.get("count", "")) == len(sample.faces)
+    p = np.array(_text(_one(tri, f"{COLLADA}p")).split(), dtype=np.int64).reshape(-1, 3, 2)
     np.testing.assert_array_equal(p[:, :, 0], sample.faces)
     np.testing.assert_array_equal(normals[p[:, 0, 1]], sample.normals())
     # The material the triangles name is bound in the scene.
-    bound = root.find(f".//{COLLADA}instance_material")
+    bound = _one(root, f".//{COLLADA}instance_material")
     assert bound.get("symbol") == tri.get("material")
     assert dae_bytes(sample, "walls 1") == data
 
@@ -313,10 +326,14 @@ def test_dae_reads_back_with_lxml(sample: Mesh) -> None:
 def test_trimesh_reads_every_file(sample: Mesh, kind: str) -> None:
     import trimesh  # a test dependency (with pycollada for DAE): an independent reader
 
-    data = {"stl": stl_bytes, "obj": obj_bytes, "dae": lambda m: dae_bytes(m, "walls")}[kind](
-        sample
-    )
+    writers: dict[str, Callable[[Mesh], bytes]] = {
+        "stl": stl_bytes,
+        "obj": obj_bytes,
+        "dae": lambda m: dae_bytes(m, "walls"),
+    }
+    data = writers[kind](sample)
     loaded = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", process=False)
+    assert isinstance(loaded, trimesh.Trimesh)
     # STL and COLLADA (through pycollada) hold float32 numbers; OBJ keeps every digit.
     atol = 0 if kind == "obj" else 1e-5
     np.testing.assert_allclose(loaded.vertices[loaded.faces], triangles(sample), atol=atol, rtol=0)

@@ -14,7 +14,7 @@ from scan2terrain.types import Pose2D
 
 
 def centres(shape: tuple[int, int], origin: Pose2D, res: float) -> tuple[np.ndarray, np.ndarray]:
-    rows, cols = np.indices(shape)
+    rows, cols = np.indices(shape, dtype=np.float64)
     return origin.transform((cols + 0.5) * res, (rows + 0.5) * res)
 
 

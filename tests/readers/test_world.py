@@ -29,7 +29,7 @@ from scan2terrain.config import load_config
 from scan2terrain.errors import InputError
 from scan2terrain.exporters.meshfile import dae_bytes, obj_bytes, stl_bytes
 from scan2terrain.geometry.mesh import Mesh, boxes_mesh
-from scan2terrain.readers.world import MAX_TRIANGLES, WorldGeometry, read_world
+from scan2terrain.readers.world import MAX_TRIANGLES, Simulator, WorldGeometry, read_world
 from scan2terrain.types import HeightGrid, Pose2D
 from scan2terrain.world.folder import write_world_folder
 from tests.conftest import write_map
@@ -44,7 +44,10 @@ from tests.gazebo_harness import (
 )
 
 H = 2.0
-WORLDS = (("world_gz.sdf", "gz"), ("world_classic.world", "classic"))
+WORLDS: tuple[tuple[str, Simulator], ...] = (
+    ("world_gz.sdf", "gz"),
+    ("world_classic.world", "classic"),
+)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -174,19 +177,19 @@ def cast_down(vertices: np.ndarray, triangles: np.ndarray, xy: np.ndarray) -> np
     centre = np.array([*xy.mean(axis=0), vertices[:, 2].mean()])
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
-        o3d.core.Tensor((vertices - centre).astype(np.float32)),
-        o3d.core.Tensor(triangles.astype(np.uint32)),
+        o3d.core.Tensor.from_numpy((vertices - centre).astype(np.float32)),
+        o3d.core.Tensor.from_numpy(triangles.astype(np.uint32)),
     )
     top = float(vertices[:, 2].max() - centre[2]) + 1.0
     rays = np.zeros((len(xy), 6), dtype=np.float32)
     rays[:, :2] = xy - centre[:2]
     rays[:, 2], rays[:, 5] = top, -1.0
-    hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+    hit = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy().astype(np.float64)
     result: np.ndarray = top - hit + centre[2]
     return result
 
 
-def check_heightmaps(geo: WorldGeometry, probes: list[HeightmapProbe], simulator: str) -> int:
+def check_heightmaps(geo: WorldGeometry, probes: list[HeightmapProbe], simulator: Simulator) -> int:
     """Every collision heightmap of the probe, at every vertex (x, y and z) and at the midpoints
     of (a sample of) cell edges: the reader's surface is the probe's within 1e-4 m. Returns how
     many heightmaps were compared."""
@@ -233,9 +236,9 @@ def check_heightmaps(geo: WorldGeometry, probes: list[HeightmapProbe], simulator
     return count
 
 
-def check_world_file(world: Path, simulator: str, tmp: Path) -> dict[str, int]:
+def check_world_file(world: Path, simulator: Simulator, tmp: Path) -> dict[str, int]:
     """Read ``world`` and compare every collision with the probe's; what was compared."""
-    geo = read_world(world, simulator=simulator)  # type: ignore[arg-type]
+    geo = read_world(world, simulator=simulator)
     models = world.parent / "models"
     _, shapes = probe_shapes(world, [models], tmp / f"shapes_{simulator}")
     checked = check_shapes(geo, shapes)
@@ -279,7 +282,7 @@ def test_polylines_with_holes_and_islands(tmp_path: Path) -> None:
     yaml_path = write_map(tmp_path / "map", pixels, resolution=0.1)
     out = map_world(yaml_path, tmp_path / "out", "polylines", **{"filter.enabled": False})
     for name, sim in WORLDS:
-        geo = read_world(out / name, simulator=sim)  # type: ignore[arg-type]
+        geo = read_world(out / name, simulator=sim)
         assert any("2 rings" in p for p in geo.parts), geo.parts
         checked = check_world_file(out / name, sim, tmp_path / sim)
         assert checked["polyline"] == 3
@@ -373,7 +376,7 @@ def test_bag_world_reads_back_and_from_bytes(
     assert main(["bag2world", str(bag), "-o", str(out), "-q"]) == 0
     for name, sim in WORLDS:
         check_world_file(out / name, sim, tmp_path / sim)
-        disk = read_world(out / name, simulator=sim)  # type: ignore[arg-type]
+        disk = read_world(out / name, simulator=sim)
         # The same world from bytes (a world folder before it is written), from elsewhere.
         files = {
             p.relative_to(out).as_posix(): p.read_bytes()
@@ -384,7 +387,7 @@ def test_bag_world_reads_back_and_from_bytes(
         empty = tmp_path / "elsewhere"
         empty.mkdir(exist_ok=True)
         monkeypatch.chdir(empty)
-        from_bytes = read_world(Path(name), simulator=sim, files=files)  # type: ignore[arg-type]
+        from_bytes = read_world(Path(name), simulator=sim, files=files)
         np.testing.assert_array_equal(from_bytes.vertices, disk.vertices)
         np.testing.assert_array_equal(from_bytes.triangles, disk.triangles)
         assert [p.split(": ")[1] for p in from_bytes.parts] == [
@@ -492,10 +495,10 @@ def hand_world(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Path, P
 
 @pytest.mark.parametrize("simulator", ["gz", "classic"])
 def test_hand_written_world_gives_analytic_shapes(
-    hand_world: tuple[Path, Path, Path], simulator: str, tmp_path: Path
+    hand_world: tuple[Path, Path, Path], simulator: Simulator, tmp_path: Path
 ) -> None:
     world, paths, env = hand_world
-    geo = read_world(world, simulator=simulator, model_paths=[paths])  # type: ignore[arg-type]
+    geo = read_world(world, simulator=simulator, model_paths=[paths])
     index = labelled(geo)
     assert list(index) == [
         "shapes/l/box",
@@ -544,13 +547,13 @@ def test_hand_written_world_gives_analytic_shapes(
     _, shapes = probe_shapes(world, [paths, env], tmp_path / f"probe_{simulator}")
     meshes_and_boxes = [s for s in shapes if s.type in ("box", "mesh")]
     assert check_shapes(geo, meshes_and_boxes) == {"box": 1, "mesh": 2}
-    for s in shapes:
-        if s.kind == "collision" and s.type not in ("box", "mesh"):
-            k = index[f"{s.model}/{s.link}/{s.name}"]
+    for shape in shapes:
+        if shape.kind == "collision" and shape.type not in ("box", "mesh"):
+            k = index[f"{shape.model}/{shape.link}/{shape.name}"]
             pts = geo.part(k).reshape(-1, 3)
             centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
-            if s.name in ("cylinder", "sphere"):
-                np.testing.assert_allclose(centre, s.pose[:3], atol=1e-9)
+            if shape.name in ("cylinder", "sphere"):
+                np.testing.assert_allclose(centre, shape.pose[:3], atol=1e-9)
 
 
 def test_more_shapes_and_pose_forms(tmp_path: Path) -> None:
@@ -806,7 +809,7 @@ def test_include_loop_through_two_models(tmp_path: Path) -> None:
     world.write_text(world_sdf("<include><uri>model://a</uri></include>"))
     error = refused(world)
     assert "includes itself" in error.problem
-    assert error.path is not None and error.path.name == "model.sdf"
+    assert isinstance(error.path, Path) and error.path.name == "model.sdf"
 
 
 def write_mesh_world(tmp_path: Path, name: str, data: bytes | None) -> Path:
