@@ -73,6 +73,8 @@ SCAN_LAG_NS, POSE_LAG_NS = 5_000_000, 1_000_000
 
 Floats = NDArray[np.float64]
 Segs = list[tuple[float, float, float, float]]
+#: The frame of a TUM file of the truth: the robot base or the laser.
+TumFrame = Literal["base_link", "laser"]
 
 
 # --- 2D poses (x, y, yaw) ------------------------------------------------------------------------
@@ -945,7 +947,7 @@ class Recording:
         path: Path,
         *,
         poses: Literal["truth", "odom"] = "truth",
-        frame: Literal["base_link", "laser"] = "base_link",
+        frame: TumFrame = "base_link",
     ) -> Path:
         """The truth (scene frame) or the odometry (odometry frame) at the scans as a TUM file,
         of base_link (z = 0) or of the laser (z = the mount's height)."""

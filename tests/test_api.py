@@ -160,6 +160,7 @@ def test_the_result_says_what_the_cli_printed_and_what_was_written(
     fidelity = py / "w" / "fidelity.yaml"
     if fidelity.exists():
         assert result.fidelity == yaml.safe_load(fidelity.read_text())
+        assert result.fidelity is not None
         assert all(w["beams"] > 0 for w in result.fidelity["worlds"].values())
     else:
         assert result.fidelity is None

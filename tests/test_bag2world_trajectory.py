@@ -18,7 +18,7 @@ import yaml
 
 from scan2terrain.cli import main
 from scan2terrain.readers.tracks import read_tum
-from tests.bagmaker import synthetic_room, write_bag
+from tests.bagmaker import Fmt, synthetic_room, write_bag
 
 MOUNT = ["--mount", "0.2", "0", "0.3", "0", "0", "0"]  # bagmaker's default laser mount
 T0 = 1_700_000_000_000_000_000
@@ -60,7 +60,7 @@ def odometry_poses(messages: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 @pytest.mark.parametrize("fmt", ["ros1", "sqlite3"])
 def test_odometry_bag_writes_its_trajectory_and_no_world(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: Fmt
 ) -> None:
     room = synthetic_room("odom", n_scans=40)
     messages = without_scans(room.messages) + imu_and_gps()
@@ -130,8 +130,8 @@ def test_tf_bag_writes_the_base_in_the_map_frame(
     np.testing.assert_allclose(track.translations[:, :2], want[:, 1:3], rtol=0, atol=1e-12)
     np.testing.assert_allclose(track.translations[:, 2], 0.0, atol=1e-12)
     q = track.quaternions_xyzw
-    yaw = 2 * np.arctan2(q[:, 2], q[:, 3])
-    np.testing.assert_allclose(np.angle(np.exp(1j * (yaw - want[:, 3]))), 0.0, atol=1e-12)
+    yaws = 2 * np.arctan2(q[:, 2], q[:, 3])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (yaws - want[:, 3]))), 0.0, atol=1e-12)
 
 
 def test_the_written_trajectory_poses_the_scans_as_the_odometry_did(

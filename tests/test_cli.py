@@ -28,7 +28,7 @@ from tests.fixtures import (
 )
 
 
-def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+def run(capsys: pytest.CaptureFixture[str], *args: str | Path) -> tuple[int, str, str]:
     code = main([str(a) for a in args])
     out, err = capsys.readouterr()
     return code, out, err
@@ -67,6 +67,8 @@ def test_map2world_writes_the_documented_folder(
     assert code == 0, err
     files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     name = next(p.name for p in (out / "models").iterdir() if not p.name.endswith("_classic"))
+    gz_files: tuple[str, ...]
+    classic_files: tuple[str, ...]
     if geometry == "heightmap":
         gz_files, classic_files = HEIGHTMAP_FILES, HEIGHTMAP_FILES[:3]
     else:
@@ -284,7 +286,8 @@ def test_image_invert_and_extend_keeps_added_cells_at_the_floor(
 ) -> None:
     Image.fromarray(np.full((4, 4), 255, np.uint8)).save(tmp_path / "white.png")
     out = tmp_path / "o"
-    args = ["image2world", tmp_path / "white.png", "-o", out, "--simulator", "gz", "--no-filter"]
+    args: list[str | Path] = ["image2world", tmp_path / "white.png", "-o", out]
+    args += ["--simulator", "gz", "--no-filter"]
     code, _, err = run(capsys, *args, "--invert", "--width", "6", "--offset-x", "1")
     assert code == 0, err
     model = next((out / "models").iterdir())
@@ -327,7 +330,7 @@ def test_cloud_report_keeps_the_writers_notes(
     config = tmp_path / "tiles.yaml"
     config.write_text("terrain: {max_side: 129}\n")
     cloud = HDL_PCD
-    argv = ["cloud2world", cloud, "-o", tmp_path / "w", "--grid", "height"]
+    argv: list[str | Path] = ["cloud2world", cloud, "-o", tmp_path / "w", "--grid", "height"]
     argv += ["--resolution", "0.2", "--config", config, *(["--stream"] if stream else [])]
     code, out, err = run(capsys, *argv)
     assert code == 0, err
@@ -373,7 +376,7 @@ def test_grid_too_large_is_refused_before_allocating(
     clouds = CLOUDS
     laz = clouds / "pc_laz_autzen_trim/autzen_trim.laz"
     xyz = clouds / "pc_xyz_street_lidar/multisensor_lidar.xyz"
-    argv = ["cloud2world", laz, xyz, "-o", tmp_path / "w", "--grid", "height"]
+    argv: list[str | Path] = ["cloud2world", laz, xyz, "-o", tmp_path / "w", "--grid", "height"]
     argv += ["--resolution", "1"]
     code, _, err = run(capsys, *argv, *(["--stream"] if stream else []))
     assert code == 2 and err.count("\n") == 1, err
@@ -387,19 +390,20 @@ def test_progress_rates_count_from_the_start(
 ) -> None:
     """The points/s figure divides by the time since the command started, not since the bar
     first showed (after the first task: 110,000 points once read as 7819 M points/s)."""
-    from types import SimpleNamespace
+    import time
 
     from scan2terrain.cli import display as cli
+    from scan2terrain.types import ScanCounts
 
     now = [100.0]
-    monkeypatch.setattr(cli.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(time, "monotonic", lambda: now[0])  # the clock display reads
     bar = cli.TaskBar(enabled=True) if kind == "tasks" else cli.ProgressBar(enabled=True)
     with bar:
         now[0] += 2.0
         if isinstance(bar, cli.TaskBar):
             bar.update(1, 1, 4_000_000)
         else:
-            bar.update(SimpleNamespace(messages=1, inserted=1, points=4_000_000), 1)
+            bar.update(ScanCounts(messages=1, inserted=1, points=4_000_000), 1)
     assert "2.00 M points/s" in capsys.readouterr().err
 
 
@@ -502,7 +506,10 @@ def test_python_dash_m_runs_the_command() -> None:
 
 def test_version_has_one_source_the_package_metadata() -> None:
     """``--version`` and ``scan2terrain.__version__`` say pyproject.toml's version."""
-    import tomllib
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pytest depends on tomli before 3.11
+        import tomli as tomllib
 
     import scan2terrain
 
@@ -517,4 +524,4 @@ def test_version_has_one_source_the_package_metadata() -> None:
     assert done.returncode == 0 and done.stdout == f"scan2terrain {declared}\n"
     assert scan2terrain.__version__ == declared
     with pytest.raises(AttributeError):
-        _ = scan2terrain.no_such_name  # type: ignore[attr-defined]
+        _ = scan2terrain.no_such_name

@@ -34,7 +34,8 @@ def cannot_hold(report: str) -> list[str]:
 
 
 def records(path: Path) -> np.ndarray:
-    return laspy.read(path).points.array
+    array: np.ndarray = laspy.read(path).points.array
+    return array
 
 
 def crs_records(path: Path) -> list[tuple[str, int, bytes]]:

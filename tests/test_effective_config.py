@@ -14,7 +14,8 @@ from tests.fixtures import FUSE_DIR
 
 
 def written(out: Path) -> dict[str, dict[str, object]]:
-    return yaml.safe_load((out / "scan2terrain.yaml").read_text())  # type: ignore[no-any-return]
+    doc: dict[str, dict[str, object]] = yaml.safe_load((out / "scan2terrain.yaml").read_text())
+    return doc
 
 
 @pytest.mark.parametrize(

@@ -143,7 +143,7 @@ def test_a_bad_crs_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str
 
 def test_streamed_worlds_say_the_same(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cloud = hill_cloud(tmp_path / "hill.xyz")
-    worlds = []
+    worlds: list[str] = []
     for extra in ([], ["--stream"]):
         out = tmp_path / f"w{len(worlds)}"
         run(capsys, "cloud2world", str(cloud), "-o", str(out), "--resolution", "0.5",

@@ -32,7 +32,7 @@ def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     Image.fromarray(((x * y) % 256).astype(np.uint8)).save(root / "hill.png")
     dem = MOON
     cloud = AUTZEN_CSV
-    commands = {
+    commands: dict[str, list[str | Path]] = {
         "mesh": ["map2world", map_yaml, "-o", root / "mesh", "--no-preview"],
         "image": ["image2world", root / "hill.png", "-o", root / "image", "--resolution", "0.1"],
         "dem": ["dem2world", dem, "-o", root / "dem", "--no-preview"],

@@ -15,12 +15,14 @@ from scan2terrain.readers.bag import open_bag
 from scan2terrain.readers.scans import plan_bag, posed_scans
 from scan2terrain.readers.tracks import read_tum
 from scan2terrain.types import ScanCounts
-from tests.bagmaker import cast_rays
+from tests.bagmaker import Fmt, cast_rays
 from tests.slamworld import (
     SCENES,
     TRUTH,
     Drift,
+    Floats,
     Laser,
+    TumFrame,
     make_scene,
     simulate,
 )
@@ -149,7 +151,7 @@ def _read(bag: Path, **cfg: object) -> tuple[str, str, np.ndarray]:
 
 
 @pytest.mark.parametrize("fmt", ["ros1", "mcap"])
-def test_bag_reads_back(tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str) -> None:
+def test_bag_reads_back(tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: Fmt) -> None:
     """inspect sees the topics; without a map frame the scans are posed by odometry, with one
     by tf in 'map' at the truth; the odometry's tf gives the odometry's poses."""
     rec = simulate("corridor_loop", laps=0.3, odom_per_scan=2, odom_start=(0.0, 0.0, 0.0))
@@ -191,7 +193,11 @@ def test_truth_files(tmp_path: Path) -> None:
     """The TUM files read back as the truth (base_link and laser); the occupancy grid holds the
     walls: every return of an exact scan falls in or next to an occupied cell."""
     rec = simulate("rooms", laps=0.3, laser=Laser(noise=0.0))
-    for frame, poses, z in (("base_link", rec.truth, 0.0), ("laser", rec.laser_poses, 0.3)):
+    truths: dict[TumFrame, tuple[Floats, float]] = {
+        "base_link": (rec.truth, 0.0),
+        "laser": (rec.laser_poses, 0.3),
+    }
+    for frame, (poses, z) in truths.items():
         track = read_tum(rec.write_tum(tmp_path / f"{frame}.tum", frame=frame))
         assert np.array_equal(track.times_ns, rec.stamps_ns)
         np.testing.assert_allclose(track.translations[:, :2], poses[:, :2], atol=1e-12)

@@ -121,10 +121,10 @@ def test_killed_worker_loses_and_doubles_nothing(
     from dask.distributed import Client, LocalCluster
 
     with (
-        LocalCluster(
+        LocalCluster(  # type: ignore[no-untyped-call]  # distributed has no annotations
             n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
         ) as cluster,
-        Client(cluster) as client,
+        Client(cluster) as client,  # type: ignore[no-untyped-call]
     ):
         cfg = config(chunk_points=200, tile_cells=8, scheduler=cluster.scheduler_address)
         chunks, _, _ = stream.plan_clouds(las_tiles, cfg)

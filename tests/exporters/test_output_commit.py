@@ -14,14 +14,19 @@ import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import ParamSpec, TypeVar
 
 import pytest
 
 from scan2terrain.cli import main
 from scan2terrain.errors import OutputError
 from scan2terrain.exporters import output
-from scan2terrain.exporters.output import TMP_PREFIX, OutputDir, atomic_output
+from scan2terrain.exporters.output import OutputDir, atomic_output
+from scan2terrain.fileio import TMP_PREFIX
 from tests.fixtures import MAPS
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 FILES = ("scan2terrain.yaml", "world.txt", "models/m/model.sdf", "models/m/meshes/walls.stl")
 
@@ -76,8 +81,8 @@ def kill_at(step: str, fallback: bool) -> None:
         output._RENAMEAT2 = None
     calls = {"n": 0}
 
-    def nth(n: int, real: Callable[..., object]) -> Callable[..., object]:
-        def wrapper(*args: object, **kwargs: object) -> object:
+    def nth(n: int, real: Callable[P, R]) -> Callable[P, R]:
+        def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
             calls["n"] += 1
             if calls["n"] == n:
                 die()
@@ -94,7 +99,8 @@ def kill_at(step: str, fallback: bool) -> None:
     elif step == "old folder aside":  # fallback: after target -> aside, before tmp -> target
         Path.rename = nth(2, Path.rename)  # type: ignore[method-assign]
     elif step == "removing the old folder":
-        output.shutil.rmtree = lambda *a, **k: die()  # type: ignore[assignment]
+        # output's shutil is this module: rmtree replaced for the commit's call
+        shutil.rmtree = lambda *a, **k: die()  # type: ignore[assignment]
     else:
         raise AssertionError(step)
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 import pytest
 
 from scan2terrain.cli import build_parser
-from scan2terrain.config import FILTERS, load_config
+from scan2terrain.config import FILTERS, FilterKind, load_config
 from scan2terrain.errors import ConfigError
 from scan2terrain.filters.registry import FILTERS as REGISTRY
 from scan2terrain.filters.registry import run_filter
@@ -14,8 +16,11 @@ from scan2terrain.filters.registry import run_filter
 
 def test_config_and_cli_choices_come_from_the_registry() -> None:
     assert ("none", *REGISTRY) == FILTERS
-    sub = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
-    for name, parser in sub.items():
+    group = build_parser()._subparsers
+    assert group is not None
+    sub = group._group_actions[0]
+    assert isinstance(sub, argparse._SubParsersAction)
+    for name, parser in sub.choices.items():
         for action in parser._actions:
             if action.dest == "filter.kind":
                 assert tuple(action.choices) == FILTERS, name
@@ -23,7 +28,7 @@ def test_config_and_cli_choices_come_from_the_registry() -> None:
 
 @pytest.mark.parametrize("kind", sorted(REGISTRY))
 @pytest.mark.parametrize("dtype", [np.int8, np.uint8, np.uint16])
-def test_every_filter_keeps_shape_and_dtype(kind: str, dtype: type) -> None:
+def test_every_filter_keeps_shape_and_dtype(kind: FilterKind, dtype: type[np.integer]) -> None:
     rng = np.random.default_rng(7)
     a = rng.integers(0, 3, size=(9, 11)).astype(dtype)
     out = run_filter(a, kind, 3, "majority" if dtype == np.int8 else "median")

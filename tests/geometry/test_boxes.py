@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from numpy.typing import NDArray
 from scipy import ndimage, sparse
 from scipy.optimize import Bounds, LinearConstraint, milp
 
@@ -143,7 +144,8 @@ def fewest_covering_rectangles(occ: np.ndarray) -> tuple[float, int]:
 def filtered_map(name: str) -> np.ndarray:
     meta, grid = read_map_yaml(MAPS[name])
     trinary = steps.classify(grid, meta.mode, meta.occupied_thresh, meta.free_thresh)
-    return steps.filter_occupancy(trinary, Config()) == 100
+    walls: NDArray[np.bool_] = steps.filter_occupancy(trinary, Config()) == 100
+    return walls
 
 
 # --- small hand-made grids ----------------------------------------------------------------------
@@ -197,7 +199,7 @@ def test_boxes_are_sorted_and_deterministic() -> None:
 
 def test_non_bool_input_is_truthiness() -> None:
     occ = np.array([[0, 100, 100], [0, 0, 7]], dtype=np.int16)
-    assert_exact_cover(occ != 0, merge_boxes(occ))
+    assert_exact_cover(occ != 0, merge_boxes(occ))  # type: ignore[arg-type]  # int16, on purpose
 
 
 def test_rasterize_boxes_and_extents() -> None:

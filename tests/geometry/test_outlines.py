@@ -348,7 +348,9 @@ def test_simplify_keeps_thin_walls_whole() -> None:
     assert len(simple) == 22
     assert all(len(p.exterior) == 4 for p in simple)
     # Every centre keeps its distance from the outline.
-    centres = np.stack(np.nonzero(np.ones(occ.shape, dtype=bool))[::-1], axis=1) + 0.5
+    centres = (
+        np.stack(np.nonzero(np.ones(occ.shape, dtype=bool))[::-1], axis=1).astype(np.float64) + 0.5
+    )
     for p in simple:
         assert distance_to_ring(centres * 0.05, p.exterior).min() >= 0.15 * 0.05 - 1e-12
 

@@ -3,11 +3,14 @@ independent reader that welds equal positions, as STL readers do)."""
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
 import pytest
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from scan2terrain.geometry.voxel_mesh import (
     SPLIT,
@@ -130,6 +133,10 @@ def test_origin_resolution_labels_and_budget() -> None:
     assert err.value.count == 12
 
 
+class _BadOptions(TypedDict, total=False):
+    chunk_cells: int
+
+
 @pytest.mark.parametrize(
     ("keys", "kwargs", "match"),
     [
@@ -139,7 +146,7 @@ def test_origin_resolution_labels_and_budget() -> None:
         (np.zeros((1, 3), int), {"chunk_cells": 0}, "chunk_cells"),
     ],
 )
-def test_bad_arguments(keys: np.ndarray, kwargs: dict[str, int], match: str) -> None:
+def test_bad_arguments(keys: np.ndarray, kwargs: _BadOptions, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         mesh_voxels(keys, 1.0, **kwargs)
 
@@ -213,11 +220,13 @@ def _inward(chunk: VoxelChunk, keys: np.ndarray, r: float, chunk_cells: int | No
     below, above = cell.copy(), cell.copy()
     below[rows, axis] = plane - 1
     above[rows, axis] = plane
-    lo, span = k.min(0) - 1, k.max(0) - k.min(0) + 3
+    lo: NDArray[np.int64] = k.min(0) - 1
+    span: NDArray[np.int64] = k.max(0) - k.min(0) + 3
 
-    def code(c: np.ndarray) -> np.ndarray:
+    def code(c: NDArray[np.int64]) -> NDArray[np.int64]:
         c = c - lo
-        return (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+        codes: NDArray[np.int64] = (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+        return codes
 
     occupied_below = np.isin(code(below), code(k))
     assert (occupied_below != np.isin(code(above), code(k))).all()  # on an exposed face

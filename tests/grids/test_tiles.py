@@ -32,7 +32,9 @@ def reference(points: np.ndarray, lat: Lattice) -> dict[str, np.ndarray]:
     cols = [k[1] for k in cells]
     r0, c0 = min(rows), min(cols)
     shape = (max(rows) - r0 + 1, max(cols) - c0 + 1)
-    out = {f: np.full(shape, np.nan, dtype=np.float32) for f in ("max_z", "min_z", "mean_z")}
+    out: dict[str, np.ndarray] = {
+        f: np.full(shape, np.nan, dtype=np.float32) for f in ("max_z", "min_z", "mean_z")
+    }
     out["count"] = np.zeros(shape, dtype=np.int32)
     for (r, c), zs in cells.items():
         z32 = np.array(zs, dtype=np.float32)

@@ -32,7 +32,8 @@ def lidar_scan(
         t_in = np.nanmax(np.minimum(t1, t2), axis=1)
         t_out = np.nanmin(np.maximum(t1, t2), axis=1)
     pillar = (t_in <= t_out) & (t_in > 0)
-    t = np.where(pillar, np.minimum(t_wall, t_in), t_wall) + rng.normal(0.0, 0.01, len(d))
+    t: NDArray[np.float64] = np.where(pillar, np.minimum(t_wall, t_in), t_wall)
+    t = t + rng.normal(0.0, 0.01, len(d))
     return origin + d * t[:, None]
 
 

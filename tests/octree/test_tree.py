@@ -117,7 +117,7 @@ def test_fr079_from_three_poses_equals_octomap_at_01(octomap: ModuleType, fr079:
     # the poses overlap: some voxels were updated by more than one scan
     _, lo = ours.voxels()
     th = ours.thresholds
-    single = np.isin(lo, np.float32([th["hit"], th["miss"]]))
+    single = np.isin(lo, np.array([th["hit"], th["miss"]], np.float32))
     assert (~single).sum() > 1000
 
 
@@ -226,7 +226,12 @@ def test_parallel_insertion_is_deterministic(
         pytest.fail("needs numba with >= 2 threads (set NUMBA_NUM_THREADS=2) to run in parallel")
     boxed: list[tuple[Any, ...]] = []
     cast_box = _raybox.cast_box
-    monkeypatch.setattr(_raybox, "cast_box", lambda *a: boxed.append(a) or cast_box(*a))
+
+    def recorded(*a: Any) -> Any:
+        boxed.append(a)
+        return cast_box(*a)
+
+    monkeypatch.setattr(_raybox, "cast_box", recorded)
     parallel = spy(monkeypatch, "cast_parallel")
     results = []
     for n in (1, 2, 1, 2):
@@ -390,7 +395,7 @@ def random_tree(seed: int, n: int = 3000) -> tuple[VoxelOctree, dict[tuple[int, 
     values = rng.uniform(-2.0, 3.5, len(keys)).astype(np.float32)
     ref: dict[tuple[int, int, int], float] = {}
     for k, v in zip(keys.tolist(), values.tolist(), strict=True):
-        ref[tuple(k)] = v  # type: ignore[index]  # the last write wins
+        ref[tuple(k)] = v  # the last write wins
     tree = VoxelOctree(0.1)
     tree.set_voxels(keys, values)
     return tree, ref
@@ -451,12 +456,13 @@ def test_logodds_at_known_and_unknown_points() -> None:
             ]
         )
     )
-    np.testing.assert_array_equal(got[:3], np.float32([th["hit"], th["hit"], th["miss"]]))
+    np.testing.assert_array_equal(got[:3], np.array([th["hit"], th["hit"], th["miss"]], np.float32))
     assert np.isnan(got[3:]).all()
-    assert tree.logodds_at([1.05, 0.05, 0.05]).shape == (1,)
+    assert tree.logodds_at(np.array([1.05, 0.05, 0.05])).shape == (1,)
     assert tree.is_occupied(got).tolist() == [True, True, False, False, False, False]
     # isNodeOccupied uses >= the threshold (log-odds 0)
-    assert tree.is_occupied(np.float32([0.0, -1e-7, np.nan])).tolist() == [True, False, False]
+    at_threshold = np.array([0.0, -1e-7, np.nan], np.float32)
+    assert tree.is_occupied(at_threshold).tolist() == [True, False, False]
     keys = tree.coord_to_key(np.array([[1.05, 0.05, 0.05], [-0.05, 0, 0], [1e6, 0, 0]]))
     assert keys.tolist() == [[OFF + 10, OFF, OFF], [OFF - 1, OFF, OFF], [-1, OFF, OFF]]
     np.testing.assert_allclose(tree.key_to_coord(keys[:1]), [[1.05, 0.05, 0.05]])
@@ -585,7 +591,7 @@ def test_origin_outside_the_key_range_raises(origin: tuple[float, float, float])
 )
 def test_origin_not_three_finite_numbers_raises(origin: tuple[float, ...]) -> None:
     with pytest.raises(InputError):
-        VoxelOctree(0.1).insert_scan(np.array([[1.0, 0.0, 0.0]]), origin)
+        VoxelOctree(0.1).insert_scan(np.array([[1.0, 0.0, 0.0]]), origin)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("shape", [(5, 2), (5, 4), (3,), (5, 3, 1), (0,)])

@@ -86,7 +86,7 @@ def test_flaser_records_are_laserscans_odometry_and_a_mount(tmp_path: Path) -> N
     assert msg.header.frame_id == "laser"
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_134_864_629, 900_000_000)
     assert msg.ranges.dtype == np.float32
-    np.testing.assert_array_equal(msg.ranges, np.float32(RANGES))
+    np.testing.assert_array_equal(msg.ranges, np.array(RANGES, np.float32))
     # 5 readings: CARMEN's spacing for a count it does not know, 180 degrees over n - 1 steps
     assert (msg.angle_min, msg.angle_increment) == (-math.pi / 2, math.pi / 4)
     assert msg.angle_max == pytest.approx(math.pi / 2)

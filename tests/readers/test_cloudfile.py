@@ -68,7 +68,7 @@ def test_office_organized_compressed_drops_nans() -> None:
 
 
 def test_las_and_laz_twins_give_the_same_points() -> None:
-    import laspy
+    import laspy  # type: ignore[import-untyped]
 
     las, laz = read_cloud(SIMPLE_LAS), read_cloud(SIMPLE_LAZ)
     assert las.format == "las 1.2 point format 3" and laz.format == "laz 1.2 point format 3"
@@ -178,7 +178,8 @@ def test_pcd_field_names_in_any_case(tmp_path: Path, data: str) -> None:
     xyz = np.array([[1.5, -2.25, 3.0], [500000.125, 4.0, -0.5]])
     packed = np.array([0xFF102030, 0xFFA0B0C0], dtype=np.uint32)
     rec = np.zeros(2, dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("rgb", "<u4")])
-    rec["x"], rec["y"], rec["z"], rec["rgb"] = *xyz.T, packed
+    rec["x"], rec["y"], rec["z"] = xyz.T
+    rec["rgb"] = packed
     rows = "".join(f"{a!r} {b!r} {c!r} {int(d)}\n" for a, b, c, d in rec.tolist())
     body = rows.encode() if data == "ascii" else rec.tobytes()
     for fields in ("X Y Z RGB", "X y Z Rgb"):
@@ -197,7 +198,7 @@ def test_pcd_field_names_in_any_case(tmp_path: Path, data: str) -> None:
 
     pc = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(xyz))
     pc.colors = open3d.utility.Vector3dVector(np.array([[16, 32, 48], [160, 176, 192]]) / 255)
-    open3d.io.write_point_cloud(str(tmp_path / "lzf.pcd"), pc, compressed=True)
+    open3d.io.write_point_cloud(tmp_path / "lzf.pcd", pc, compressed=True)
     raw = (tmp_path / "lzf.pcd").read_bytes()
     assert raw.count(b"FIELDS x y z rgb\n") == 1
     (tmp_path / "LZF.pcd").write_bytes(raw.replace(b"FIELDS x y z rgb", b"FIELDS X Y Z RGB"))

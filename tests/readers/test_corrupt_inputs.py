@@ -122,7 +122,7 @@ def test_laz_chunk_table_corruption_is_refused_by_every_entry_point(tmp_path: Pa
 
 def test_laz_chunk_table_checks_pass_real_files(tmp_path: Path) -> None:
     """LASzip's own files (one chunk; several chunks) and lazrs' (point format 6, layered)."""
-    import laspy
+    import laspy  # type: ignore[import-untyped]
 
     autzen = AUTZEN
     assert len(read_cloud(autzen).points) == 110_000

@@ -20,6 +20,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -378,7 +379,8 @@ def _streamed(data: bytes) -> bytes:
     from backports import zstd
 
     c = zstd.ZstdCompressor()
-    return c.compress(data) + c.flush()
+    frame: bytes = c.compress(data) + c.flush()
+    return frame
 
 
 _HOLD = """
@@ -637,7 +639,9 @@ def test_duplicate_pointcloud2_fields_are_refused() -> None:
 # --- DEMs ---------------------------------------------------------------------------------------
 
 
-def _tiff(src: Path, tmp_path: Path, name: str, edit: dict[int, tuple[str, int, object]]) -> Path:
+def _tiff(
+    src: Path, tmp_path: Path, name: str, edit: Mapping[int, tuple[str, int, object]]
+) -> Path:
     """``src`` with values of its first IFD's entries (tag -> (format, offset in the entry,
     value)) replaced."""
     from tests.seeds import tiff_entries

@@ -76,7 +76,9 @@ def test_bad_images(tmp_path: Path) -> None:
 # --- elevation rasters are not pictures ---------------------------------------------------------
 
 DEM_FIXTURES = sorted(TERRAIN.glob("*/*.tif"))
-GEO_TAGS = [
+#: A TIFF tag as tifffile.imwrite takes it: (code, data type, count, value, write once).
+TiffTag = tuple[int, str, int, tuple[float, ...], bool]
+GEO_TAGS: list[TiffTag] = [
     (33550, "d", 3, (10.0, 10.0, 0.0), True),
     (33922, "d", 6, (0.0, 0.0, 0.0, 500000.0, 4100000.0, 0.0), True),
     (34735, "H", 8, (1, 1, 0, 1, 1024, 0, 1, 1), True),
@@ -104,7 +106,7 @@ def test_dem_fixtures_are_refused_with_a_pointer_to_dem2world(path: Path) -> Non
     ],
 )
 def test_single_band_elevation_tiffs_are_refused(
-    tmp_path: Path, dtype: type, tags: list[object], why: str
+    tmp_path: Path, dtype: type[np.generic], tags: list[TiffTag], why: str
 ) -> None:
     path = tmp_path / "valley.tif"
     heights = (np.arange(64).reshape(8, 8) * 31).astype(dtype)

@@ -18,12 +18,16 @@ import struct
 import zlib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from tests.fixtures import BAGS, EMBARK_MCAP
 from tests.mutation_runner import Case, Outcome, one_line, run_cases
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
 
 LIMIT_BYTES = 3 << 30
 TIMEOUT_S = 60
@@ -271,7 +275,7 @@ def map_inputs(tmp: Path) -> Inputs:
 # --- PLY ----------------------------------------------------------------------------------------
 
 
-def _ply_points(n: int = 150):  # type: ignore[no-untyped-def]
+def _ply_points(n: int = 150) -> NDArray[np.float32]:
     import numpy as np
 
     return np.random.default_rng(3).uniform(-5, 5, (n, 3)).astype(np.float32)
