@@ -426,7 +426,7 @@ def mcap_library_alone(bag: Path, protobuf: bool = False) -> int:
     from mcap.reader import make_reader
 
     if protobuf:
-        from mcap_protobuf.decoder import DecoderFactory  # type: ignore[import-not-found]
+        from mcap_protobuf.decoder import DecoderFactory
     else:
         from mcap_ros1.decoder import DecoderFactory  # type: ignore[import-not-found,no-redef]
 

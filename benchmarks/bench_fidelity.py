@@ -102,15 +102,14 @@ def hall_bag(tmp: Path) -> Path:
 
 
 def casting(world: Path, bag: Path) -> None:
-    from scan2terrain.cli.parser import COMMAND_DEFAULTS
+    from scan2terrain.cli.dispatch import COMMAND_DEFAULTS
     from scan2terrain.commands.replay import record
     from scan2terrain.config import load_config
     from scan2terrain.readers.world import read_world
     from scan2terrain.replay.cast import simulated_ranges
 
     cfg = load_config(None, {}, defaults=COMMAND_DEFAULTS.get("bag2world"))
-    recorder, *_ = record([bag], cfg)
-    beams = recorder.beams()
+    beams = record([bag], cfg).recorder.beams()
     geometry = read_world(world / "world_gz.sdf")
     best = float("inf")
     for _ in range(3):

@@ -65,7 +65,7 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
         meshfile.stl_bytes(walls)
         meshfile.dae_bytes(walls, "walls")
 
-    steps: dict[str, Callable[[], Any]] = {
+    stages: dict[str, Callable[[], Any]] = {
         "trace": lambda: outlines.trace(occ, r, origin),
         "simplify (1 cell)": lambda: simplify(exact, r, resolution=r, origin=origin),
         "extrude (exact)": lambda: mesh.extrude(exact, HEIGHT),
@@ -75,7 +75,7 @@ def time_map(path: Path, runs: int) -> tuple[dict[str, float], dict[str, int]]:
         "obj_bytes (exact)": lambda: meshfile.obj_bytes(m),
         "mesh total (trace+extrude+stl+dae)": total,
     }
-    times = {step: best_time(function, runs) for step, function in steps.items()}
+    times = {step: best_time(function, runs) for step, function in stages.items()}
     counts = {
         "occupied cells": int(occ.sum()),
         "cube triangles (12 per cell)": 12 * int(occ.sum()),

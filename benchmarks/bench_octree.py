@@ -108,7 +108,7 @@ def first_hit(origin: NDArray[np.float64], dirs: NDArray[np.float64]) -> NDArray
         lo, hi = HALL
         exit_t = np.where(dirs > 0, (hi - origin) * inv, (lo - origin) * inv)
         exit_t = np.where(dirs == 0, np.inf, exit_t)
-        t = exit_t.min(axis=1)
+        t: NDArray[np.float64] = exit_t.min(axis=1)
         for blo, bhi in OBSTACLES:
             t1, t2 = (blo - origin) * inv, (bhi - origin) * inv
             near = np.fmin(t1, t2).max(axis=1)
@@ -243,10 +243,11 @@ def numba_threads(n: int) -> Iterator[None]:
         numba.set_num_threads(old)
 
 
-STAGES = ("_points", "scan_rays", "_scan_box", "flag_blocks", "alloc_flagged", "mark_hits")
+STAGES: tuple[str, ...] = ("_points", "scan_rays", "_scan_box", "flag_blocks", "alloc_flagged")
+STAGES += ("mark_hits",)
 STAGES += ("cast_parallel", "cast_serial", "block_bounds", "cast_box", "alloc_box", "apply_box")
 STAGES += ("apply_blocks", "_fresh_blocks", "_adopt", "_grow")
-ENDPOINT_STAGES = ("_points_any", "count_points", "place_points", "touch_points")
+ENDPOINT_STAGES: tuple[str, ...] = ("_points_any", "count_points", "place_points", "touch_points")
 ENDPOINT_STAGES += ("group_new_points", "sparse_rehash", "upsert_sparse", "alloc_dense_runs")
 ENDPOINT_STAGES += ("_fresh_blocks", "adopt_sparse", "mark_point_bits", "apply_blocks", "_grow")
 
@@ -507,7 +508,7 @@ def machine_info() -> None:
     print(
         f"cpus: os.cpu_count()={os.cpu_count()}, affinity={len(os.sched_getaffinity(0))}; "
         f"numba threads {numba.get_num_threads()} (NUMBA_NUM_THREADS="
-        f"{numba.config.NUMBA_NUM_THREADS}, layer {numba.config.THREADING_LAYER!r})"
+        f"{numba.config.NUMBA_NUM_THREADS}, layer {numba.config.THREADING_LAYER!r})"  # type: ignore[attr-defined]
     )
     versions = {
         "python": platform.python_version(),
@@ -577,7 +578,7 @@ def endpoint_part(n_end: int, quick: bool, summary: list[tuple[str, str, str, bo
         t_fresh = timed(fresh, reps, keep)
         tree = keep[0]
         size = tree.memory_bytes()
-        t_again = timed(lambda tree=tree, pts=pts: tree.insert_endpoints(pts), 3)
+        t_again = timed(functools.partial(tree.insert_endpoints, pts), 3)
         rate = n_end / t_fresh.best / 1e6
         ours_rate[short] = rate
         print(
@@ -588,10 +589,11 @@ def endpoint_part(n_end: int, quick: bool, summary: list[tuple[str, str, str, bo
             flush=True,
         )
         summary.append((f"insert_endpoints {short}", f"{rate:.2f} M/s", ">= 20 M/s", rate >= 20))
-        for label, build in [
+        builds: list[tuple[str, Callable[[], Any]]] = [
             ("fresh", fresh),
-            ("again", lambda t=tree, p=pts: t.insert_endpoints(p)),
-        ]:
+            ("again", functools.partial(tree.insert_endpoints, pts)),
+        ]
+        for label, build in builds:
             acc: dict[str, float] = {}
             gc.collect()
             with stage_timer(acc, ENDPOINT_STAGES):
@@ -732,11 +734,11 @@ def run(*, quick: bool, tmp: Path, parts: set[int]) -> None:
         for res, target in [(0.05, 40.0), (0.1, 20.0)]:
             keep_o: list[Any] = []
             keep_c: list[Any] = []
-            ours = timed(lambda res=res: build_ours(fr_scan, res), reps_ours, keep_o)
-            octo = timed(lambda res=res: build_octomap(fr_scan, res), reps_octo, keep_c)
+            ours = timed(functools.partial(build_ours, fr_scan, res), reps_ours, keep_o)
+            octo = timed(functools.partial(build_octomap, fr_scan, res), reps_octo, keep_c)
             row(f"FR-079 {res:g} m", FR079_POINTS, ours, octo, target)
             with numba_threads(1):
-                one = timed(lambda res=res: build_ours(fr_scan, res), reps_ours)
+                one = timed(functools.partial(build_ours, fr_scan, res), reps_ours)
             row(f"FR-079 {res:g} m, ours 1 thread", FR079_POINTS, one, octo, None)
             fr_trees[res] = (keep_o[0], keep_c[0])
 
@@ -874,8 +876,8 @@ def run(*, quick: bool, tmp: Path, parts: set[int]) -> None:
 
     print()
     print("Summary (ratios are best/best)")
-    for name, value, target, ok in summary:
-        print(f"   {name:<40} {value:>12} {target:>14}  {verdict(ok)}")
+    for name, value, wanted, ok in summary:
+        print(f"   {name:<40} {value:>12} {wanted:>14}  {verdict(ok)}")
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"load average at end: {load}; total {time.perf_counter() - wall0:.0f} s")
 

@@ -75,16 +75,19 @@ def relations_error(est: np.ndarray, truth: np.ndarray, reach: float = 5.0) -> t
 
 def correction_alone(repeat: int) -> None:
     print("1. the correction alone (slam.planar.correct)")
-    cases: dict[str, tuple] = {"mit-csail (CARMEN, 1988 scans)": (*_mit(), None)}
+    #: label -> (prior poses, scans, duration in seconds, the simulated recording or None)
+    cases: dict[str, tuple[np.ndarray, list[np.ndarray], float, sw.Recording | None]] = {
+        "mit-csail (CARMEN, 1988 scans)": (*_mit(), None)
+    }
     for name, scale in (
         ("corridor_loop", None),
         ("rooms", None),
         ("parallel_corridors", None),
         ("corridor_loop", 1.0),
     ):
-        rec = sw.simulate(name, scale=scale)
-        label = f"{name}{'' if scale is None else f' x{scale:g}'} ({len(rec.stamps_ns)} scans)"
-        cases[label] = (rec.odom_laser_poses, flat_scans(rec), rec.duration, rec)
+        sim = sw.simulate(name, scale=scale)
+        label = f"{name}{'' if scale is None else f' x{scale:g}'} ({len(sim.stamps_ns)} scans)"
+        cases[label] = (sim.odom_laser_poses, flat_scans(sim), sim.duration, sim)
     head = (
         f"   {'recording':<38} {'duration':>9} {'wall':>7} {'speed':>7} {'local/scan':>11} "
         f"{'loops':>7} {'graph':>6} {'refine':>7} {'closures':>9}  error vs truth"
