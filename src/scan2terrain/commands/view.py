@@ -29,23 +29,21 @@ from numpy.typing import NDArray
 
 from scan2terrain.errors import ConfigError, InputError
 from scan2terrain.exporters.fidelity import CLASSES, HIT_NOTHING, NOTHING
+from scan2terrain.exporters.render3d import ROBOT_BOX, SPAWN_RGB
 from scan2terrain.exporters.sdf import is_ground
 from scan2terrain.readers.cloudfile import read_cloud
 from scan2terrain.readers.tracks import read_tum
-from scan2terrain.readers.world import Simulator, WorldGeometry, read_world
+from scan2terrain.readers.world import SIMULATORS, Simulator, WorldGeometry, read_world
+from scan2terrain.world.folder import WORLD_FILES
 
 if TYPE_CHECKING:
     import viser
 
-WORLD_FILES: dict[Simulator, str] = {"gz": "world_gz.sdf", "classic": "world_classic.world"}
 #: Beam end points sent to the browser at most (a bag's replay can have millions).
 MAX_ENDS = 500_000
-#: The robot box at the spawn pose (length, width, height, metres), as preview3d.png draws it.
-ROBOT_BOX = (0.5, 0.4, 0.3)
 GROUND_RGB = (105, 145, 105)
 SOLID_RGB = (190, 95, 65)
 TERRAIN_RGB = (200, 180, 120)
-SPAWN_RGB = (220, 40, 40)
 PATH_RGB = (30, 90, 230)
 
 
@@ -94,7 +92,8 @@ def load_folder(path: Path) -> Folder:
     path = Path(path)
     if not path.is_dir():
         raise InputError(path, "not a folder (view takes a world folder written by scan2terrain)")
-    present = [(sim, path / name) for sim, name in WORLD_FILES.items() if (path / name).is_file()]
+    files = [(sim, path / WORLD_FILES[sim]) for sim in SIMULATORS]
+    present = [(sim, file) for sim, file in files if file.is_file()]
     if not present:
         raise InputError(
             path, "not a world folder: it holds neither world_gz.sdf nor world_classic.world"
@@ -141,7 +140,7 @@ def _spawns(file: Path, yaml: Any) -> dict[str, tuple[float, ...]]:
         return {}
     doc = _yaml_mapping(file, yaml)
     poses: dict[str, tuple[float, ...]] = {}
-    for sim in WORLD_FILES:
+    for sim in SIMULATORS:
         entry = doc.get(sim)
         if entry is None:
             continue

@@ -27,6 +27,7 @@ import math
 from lxml import etree
 
 from scan2terrain.exporters.heightmap import CLASSIC, GZ
+from scan2terrain.exporters.sdf import sub_element
 
 ROBOT_DIR = "robot"
 MODEL_NAME = "robot"
@@ -91,22 +92,13 @@ def _nums(*values: float) -> str:
     return " ".join(_num(v) for v in values)
 
 
-def _sub(
-    parent: etree._Element, tag: str, text: str | None = None, **attrib: str
-) -> etree._Element:
-    el = etree.SubElement(parent, tag, attrib)
-    if text is not None:
-        el.text = text
-    return el
-
-
 def _inertial(
     link: etree._Element, mass: float, ixx: float, iyy: float, izz: float, z: float
 ) -> None:
-    inertial = _sub(link, "inertial")
-    _sub(inertial, "pose", _nums(0, 0, z, 0, 0, 0))
-    _sub(inertial, "mass", _num(mass))
-    inertia = _sub(inertial, "inertia")
+    inertial = sub_element(link, "inertial")
+    sub_element(inertial, "pose", _nums(0, 0, z, 0, 0, 0))
+    sub_element(inertial, "mass", _num(mass))
+    inertia = sub_element(inertial, "inertia")
     for key, value in (
         ("ixx", ixx),
         ("ixy", 0),
@@ -115,22 +107,22 @@ def _inertial(
         ("iyz", 0),
         ("izz", izz),
     ):
-        _sub(inertia, key, _num(value))
+        sub_element(inertia, key, _num(value))
 
 
 def _shape(
     link: etree._Element, kind: str, name: str, pose: str, geometry: tuple[str, dict[str, str]]
 ) -> None:
-    el = _sub(link, kind, name=name)
-    _sub(el, "pose", pose)
-    geom = _sub(_sub(el, "geometry"), geometry[0])
+    el = sub_element(link, kind, name=name)
+    sub_element(el, "pose", pose)
+    geom = sub_element(sub_element(el, "geometry"), geometry[0])
     for key, value in geometry[1].items():
-        _sub(geom, key, value)
+        sub_element(geom, key, value)
     if kind == "visual":
-        material = _sub(el, "material")
+        material = sub_element(el, "material")
         colour = "0.15 0.15 0.15 1" if name.startswith("wheel") else "0.85 0.35 0.1 1"
-        _sub(material, "ambient", colour)
-        _sub(material, "diffuse", colour)
+        sub_element(material, "ambient", colour)
+        sub_element(material, "diffuse", colour)
 
 
 def _both(link: etree._Element, name: str, pose: str, geometry: tuple[str, dict[str, str]]) -> None:
@@ -148,8 +140,8 @@ def robot_sdf(simulator: str) -> bytes:
             "spawn.yaml's pose. "
         )
     )
-    model = _sub(root, "model", name=MODEL_NAME)
-    _sub(model, "pose", _nums(0, 0, 0, 0, 0, 0))
+    model = sub_element(root, "model", name=MODEL_NAME)
+    sub_element(model, "pose", _nums(0, 0, 0, 0, 0, 0))
     _base(model)
     _wheels(model)
     _lidar(model, simulator)
@@ -163,7 +155,7 @@ def robot_sdf(simulator: str) -> bytes:
 def _base(model: etree._Element) -> None:
     sx, sy, sz = CHASSIS
     cz = CLEARANCE + sz / 2
-    link = _sub(model, "link", name="base_link")
+    link = sub_element(model, "link", name="base_link")
     m = CHASSIS_MASS / 12
     _inertial(link, CHASSIS_MASS, m * (sy**2 + sz**2), m * (sx**2 + sz**2), m * (sx**2 + sy**2), cz)
     _both(link, "chassis", _nums(0, 0, cz, 0, 0, 0), ("box", {"size": _nums(sx, sy, sz)}))
@@ -174,8 +166,8 @@ def _wheels(model: etree._Element) -> None:
     other = WHEEL_MASS * (3 * WHEEL_RADIUS**2 + WHEEL_WIDTH**2) / 12
     cylinder = ("cylinder", {"radius": _num(WHEEL_RADIUS), "length": _num(WHEEL_WIDTH)})
     for name, x, y in WHEELS:
-        link = _sub(model, "link", name=f"wheel_{name}")
-        _sub(link, "pose", _nums(x, y, WHEEL_RADIUS, 0, 0, 0))
+        link = sub_element(model, "link", name=f"wheel_{name}")
+        sub_element(link, "pose", _nums(x, y, WHEEL_RADIUS, 0, 0, 0))
         _inertial(link, WHEEL_MASS, other, axle, other, 0.0)
         # Seen, a cylinder touching a heightmap through Bullet (gz-sim's detector in our
         # worlds) catches on the field's triangles and stops the robot in its first 10 cm; a
@@ -185,22 +177,22 @@ def _wheels(model: etree._Element) -> None:
         sphere = ("sphere", {"radius": _num(WHEEL_RADIUS)})
         _shape(link, "collision", f"wheel_{name}_collision", _nums(0, 0, 0, 0, 0, 0), sphere)
         _shape(link, "visual", f"wheel_{name}_visual", _nums(0, 0, 0, math.pi / 2, 0, 0), cylinder)
-        joint = _sub(model, "joint", name=f"wheel_{name}_joint", type="revolute")
-        _sub(joint, "parent", "base_link")
-        _sub(joint, "child", f"wheel_{name}")
-        axis = _sub(joint, "axis")
-        _sub(axis, "xyz", "0 1 0")  # positive turns roll the robot forward
-        limit = _sub(axis, "limit")
-        _sub(limit, "lower", "-1e16")
-        _sub(limit, "upper", "1e16")
-        _sub(limit, "effort", _num(WHEEL_TORQUE))
-        _sub(limit, "velocity", _num(WHEEL_TOP_SPEED))
+        joint = sub_element(model, "joint", name=f"wheel_{name}_joint", type="revolute")
+        sub_element(joint, "parent", "base_link")
+        sub_element(joint, "child", f"wheel_{name}")
+        axis = sub_element(joint, "axis")
+        sub_element(axis, "xyz", "0 1 0")  # positive turns roll the robot forward
+        limit = sub_element(axis, "limit")
+        sub_element(limit, "lower", "-1e16")
+        sub_element(limit, "upper", "1e16")
+        sub_element(limit, "effort", _num(WHEEL_TORQUE))
+        sub_element(limit, "velocity", _num(WHEEL_TOP_SPEED))
 
 
 def _lidar(model: etree._Element, simulator: str) -> None:
     top = CLEARANCE + CHASSIS[2]
-    link = _sub(model, "link", name="base_scan")
-    _sub(link, "pose", _nums(0, 0, LIDAR_HEIGHT, 0, 0, 0))
+    link = sub_element(model, "link", name="base_scan")
+    sub_element(link, "pose", _nums(0, 0, LIDAR_HEIGHT, 0, 0, 0))
     i_r = LIDAR_MASS * (3 * LIDAR_RADIUS**2 + LIDAR_LENGTH**2) / 12
     _inertial(link, LIDAR_MASS, i_r, i_r, 0.5 * LIDAR_MASS * LIDAR_RADIUS**2, 0.0)
     # The housing stands on the chassis; the scan plane is its middle.
@@ -211,88 +203,90 @@ def _lidar(model: etree._Element, simulator: str) -> None:
         _nums(0, 0, z, 0, 0, 0),
         ("cylinder", {"radius": _num(LIDAR_RADIUS), "length": _num(LIDAR_LENGTH)}),
     )
-    sensor = _sub(link, "sensor", name="lidar", type="gpu_lidar" if simulator == GZ else "ray")
-    _sub(sensor, "pose", _nums(0, 0, 0, 0, 0, 0))
-    _sub(sensor, "always_on", "true")
-    _sub(sensor, "visualize", "true")
-    _sub(sensor, "update_rate", str(RATE_HZ))
+    sensor = sub_element(
+        link, "sensor", name="lidar", type="gpu_lidar" if simulator == GZ else "ray"
+    )
+    sub_element(sensor, "pose", _nums(0, 0, 0, 0, 0, 0))
+    sub_element(sensor, "always_on", "true")
+    sub_element(sensor, "visualize", "true")
+    sub_element(sensor, "update_rate", str(RATE_HZ))
     if simulator == GZ:
-        _sub(sensor, "topic", "/scan")
-    ray = _sub(sensor, "lidar" if simulator == GZ else "ray")
-    horizontal = _sub(_sub(ray, "scan"), "horizontal")
-    _sub(horizontal, "samples", str(BEAMS))
-    _sub(horizontal, "resolution", "1")
-    _sub(horizontal, "min_angle", "0")
-    _sub(horizontal, "max_angle", _num(2 * math.pi * (BEAMS - 1) / BEAMS))
-    rng = _sub(ray, "range")
-    _sub(rng, "min", _num(RANGE[0]))
-    _sub(rng, "max", _num(RANGE[1]))
-    _sub(rng, "resolution", "0.01")
-    noise = _sub(ray, "noise")
-    _sub(noise, "type", "gaussian")
-    _sub(noise, "mean", "0")
-    _sub(noise, "stddev", "0.01")
+        sub_element(sensor, "topic", "/scan")
+    ray = sub_element(sensor, "lidar" if simulator == GZ else "ray")
+    horizontal = sub_element(sub_element(ray, "scan"), "horizontal")
+    sub_element(horizontal, "samples", str(BEAMS))
+    sub_element(horizontal, "resolution", "1")
+    sub_element(horizontal, "min_angle", "0")
+    sub_element(horizontal, "max_angle", _num(2 * math.pi * (BEAMS - 1) / BEAMS))
+    rng = sub_element(ray, "range")
+    sub_element(rng, "min", _num(RANGE[0]))
+    sub_element(rng, "max", _num(RANGE[1]))
+    sub_element(rng, "resolution", "0.01")
+    noise = sub_element(ray, "noise")
+    sub_element(noise, "type", "gaussian")
+    sub_element(noise, "mean", "0")
+    sub_element(noise, "stddev", "0.01")
     if simulator == CLASSIC:
-        plugin = _sub(sensor, "plugin", name="scan", filename="libgazebo_ros_ray_sensor.so")
-        _sub(_sub(plugin, "ros"), "remapping", "~/out:=scan")
-        _sub(plugin, "output_type", "sensor_msgs/LaserScan")
-        _sub(plugin, "frame_name", "base_scan")
-    joint = _sub(model, "joint", name="base_scan_joint", type="fixed")
-    _sub(joint, "parent", "base_link")
-    _sub(joint, "child", "base_scan")
+        plugin = sub_element(sensor, "plugin", name="scan", filename="libgazebo_ros_ray_sensor.so")
+        sub_element(sub_element(plugin, "ros"), "remapping", "~/out:=scan")
+        sub_element(plugin, "output_type", "sensor_msgs/LaserScan")
+        sub_element(plugin, "frame_name", "base_scan")
+    joint = sub_element(model, "joint", name="base_scan_joint", type="fixed")
+    sub_element(joint, "parent", "base_link")
+    sub_element(joint, "child", "base_scan")
 
 
 def _gz_drive(model: etree._Element) -> None:
-    plugin = _sub(
+    plugin = sub_element(
         model, "plugin", filename="gz-sim-diff-drive-system", name="gz::sim::systems::DiffDrive"
     )
     for joint in LEFT_JOINTS:
-        _sub(plugin, "left_joint", joint)
+        sub_element(plugin, "left_joint", joint)
     for joint in RIGHT_JOINTS:
-        _sub(plugin, "right_joint", joint)
-    _sub(plugin, "wheel_separation", _num(WHEEL_SEPARATION))
-    _sub(plugin, "wheel_radius", _num(WHEEL_RADIUS))
-    _sub(plugin, "max_linear_velocity", _num(MAX_SPEED))
-    _sub(plugin, "min_linear_velocity", _num(-MAX_SPEED))
-    _sub(plugin, "max_angular_velocity", _num(MAX_TURN))
-    _sub(plugin, "min_angular_velocity", _num(-MAX_TURN))
-    _sub(plugin, "max_linear_acceleration", _num(MAX_ACCELERATION))
-    _sub(plugin, "min_linear_acceleration", _num(-MAX_ACCELERATION))
-    _sub(plugin, "max_angular_acceleration", _num(MAX_ACCELERATION))
-    _sub(plugin, "min_angular_acceleration", _num(-MAX_ACCELERATION))
-    _sub(plugin, "topic", "/cmd_vel")
-    _sub(plugin, "odom_topic", "/odom")
-    _sub(plugin, "tf_topic", "/tf")
-    _sub(plugin, "frame_id", "odom")
-    _sub(plugin, "child_frame_id", "base_link")
-    _sub(plugin, "odom_publish_frequency", "30")
+        sub_element(plugin, "right_joint", joint)
+    sub_element(plugin, "wheel_separation", _num(WHEEL_SEPARATION))
+    sub_element(plugin, "wheel_radius", _num(WHEEL_RADIUS))
+    sub_element(plugin, "max_linear_velocity", _num(MAX_SPEED))
+    sub_element(plugin, "min_linear_velocity", _num(-MAX_SPEED))
+    sub_element(plugin, "max_angular_velocity", _num(MAX_TURN))
+    sub_element(plugin, "min_angular_velocity", _num(-MAX_TURN))
+    sub_element(plugin, "max_linear_acceleration", _num(MAX_ACCELERATION))
+    sub_element(plugin, "min_linear_acceleration", _num(-MAX_ACCELERATION))
+    sub_element(plugin, "max_angular_acceleration", _num(MAX_ACCELERATION))
+    sub_element(plugin, "min_angular_acceleration", _num(-MAX_ACCELERATION))
+    sub_element(plugin, "topic", "/cmd_vel")
+    sub_element(plugin, "odom_topic", "/odom")
+    sub_element(plugin, "tf_topic", "/tf")
+    sub_element(plugin, "frame_id", "odom")
+    sub_element(plugin, "child_frame_id", "base_link")
+    sub_element(plugin, "odom_publish_frequency", "30")
 
 
 def _classic_drive(model: etree._Element) -> None:
-    plugin = _sub(model, "plugin", name="diff_drive", filename="libgazebo_ros_diff_drive.so")
-    _sub(plugin, "num_wheel_pairs", "2")
+    plugin = sub_element(model, "plugin", name="diff_drive", filename="libgazebo_ros_diff_drive.so")
+    sub_element(plugin, "num_wheel_pairs", "2")
     for left, right in zip(LEFT_JOINTS, RIGHT_JOINTS, strict=True):
-        _sub(plugin, "left_joint", left)
-        _sub(plugin, "right_joint", right)
-        _sub(plugin, "wheel_separation", _num(WHEEL_SEPARATION))
-        _sub(plugin, "wheel_diameter", _num(2 * WHEEL_RADIUS))
-    _sub(plugin, "max_wheel_torque", _num(WHEEL_TORQUE))
+        sub_element(plugin, "left_joint", left)
+        sub_element(plugin, "right_joint", right)
+        sub_element(plugin, "wheel_separation", _num(WHEEL_SEPARATION))
+        sub_element(plugin, "wheel_diameter", _num(2 * WHEEL_RADIUS))
+    sub_element(plugin, "max_wheel_torque", _num(WHEEL_TORQUE))
     # rad/s^2 at the wheel: MAX_ACCELERATION at the rim.
-    _sub(plugin, "max_wheel_acceleration", _num(MAX_ACCELERATION / WHEEL_RADIUS))
-    _sub(plugin, "publish_odom", "true")
-    _sub(plugin, "publish_odom_tf", "true")
-    _sub(plugin, "publish_wheel_tf", "false")
-    _sub(plugin, "odometry_frame", "odom")
-    _sub(plugin, "robot_base_frame", "base_link")
+    sub_element(plugin, "max_wheel_acceleration", _num(MAX_ACCELERATION / WHEEL_RADIUS))
+    sub_element(plugin, "publish_odom", "true")
+    sub_element(plugin, "publish_odom_tf", "true")
+    sub_element(plugin, "publish_wheel_tf", "false")
+    sub_element(plugin, "odometry_frame", "odom")
+    sub_element(plugin, "robot_base_frame", "base_link")
 
 
 def _model_config(sims: list[str]) -> bytes:
     """model.config: gz-sim and Classic each pick the newest model file they read (1.9, 1.6),
     so ``model://robot`` works in both with the folder holding robot/ on the resource path."""
     root = etree.Element("model")
-    _sub(root, "name", MODEL_NAME)
-    _sub(root, "version", "1.0")
+    sub_element(root, "name", MODEL_NAME)
+    sub_element(root, "version", "1.0")
     for sim in sims:
-        _sub(root, "sdf", MODEL_FILES[sim], version=_SDF_VERSION[sim])
-    _sub(root, "description", "scan2terrain's ready robot: differential drive, 2D lidar.")
+        sub_element(root, "sdf", MODEL_FILES[sim], version=_SDF_VERSION[sim])
+    sub_element(root, "description", "scan2terrain's ready robot: differential drive, 2D lidar.")
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)

@@ -111,9 +111,10 @@ def _fmt(*values: float) -> str:
     return " ".join(repr(round(float(v), 9)) for v in values)
 
 
-def _sub(
+def sub_element(
     parent: etree._Element, tag: str, text: str | None = None, **attrib: str
 ) -> etree._Element:
+    """A child ``tag`` of ``parent`` with ``attrib`` and, if given, ``text``."""
     el = etree.SubElement(parent, tag, attrib)
     if text is not None:
         el.text = text
@@ -123,11 +124,11 @@ def _sub(
 def _heightmap(
     parent: etree._Element, uri: str, p: Placement, pos: tuple[float, float, float] | None
 ) -> etree._Element:
-    hmap = _sub(_sub(parent, "geometry"), "heightmap")
-    _sub(hmap, "uri", uri)
-    _sub(hmap, "size", _fmt(*p.size))
+    hmap = sub_element(sub_element(parent, "geometry"), "heightmap")
+    sub_element(hmap, "uri", uri)
+    sub_element(hmap, "size", _fmt(*p.size))
     if pos is not None:
-        _sub(hmap, "pos", _fmt(*pos))
+        sub_element(hmap, "pos", _fmt(*pos))
     return hmap
 
 
@@ -141,10 +142,10 @@ def _textures(hmap: etree._Element, p: Placement, levels: tuple[float, float, fl
             (f"{base}/{k}.png", f"{base}/normal.png") for k in ("floor", "unknown", "obstacle")
         ]
     for d, n in diffuse:
-        tex = _sub(hmap, "texture")
-        _sub(tex, "diffuse", d)
-        _sub(tex, "normal", n)
-        _sub(tex, "size", "1")
+        tex = sub_element(hmap, "texture")
+        sub_element(tex, "diffuse", d)
+        sub_element(tex, "normal", n)
+        sub_element(tex, "size", "1")
     floor, unknown, wall = levels
     marks = [(floor + unknown) / 2, (unknown + wall) / 2]
     if unknown <= floor:
@@ -152,9 +153,9 @@ def _textures(hmap: etree._Element, p: Placement, levels: tuple[float, float, fl
     if unknown >= wall:
         marks[1] = (floor + wall) / 2
     for m in marks:
-        blend = _sub(hmap, "blend")
-        _sub(blend, "min_height", _fmt(m))
-        _sub(blend, "fade_dist", _fmt(max(0.01, 0.05 * (wall - floor))))
+        blend = sub_element(hmap, "blend")
+        sub_element(blend, "min_height", _fmt(m))
+        sub_element(blend, "fade_dist", _fmt(max(0.01, 0.05 * (wall - floor))))
 
 
 def model_sdf(
@@ -163,43 +164,47 @@ def model_sdf(
     """``model.sdf`` for the terrain. ``levels``: floor, unknown and obstacle heights (metres)."""
     sdf = etree.Element("sdf", version=SDF_VERSION[p.simulator])
     sdf.append(etree.Comment(comment))
-    model = _sub(sdf, "model", name=p.model_name)
-    _sub(model, "static", "true")
-    link = _sub(model, "link", name="terrain_link")
+    model = sub_element(sdf, "model", name=p.model_name)
+    sub_element(model, "static", "true")
+    link = sub_element(model, "link", name="terrain_link")
     uri = f"model://{p.model_name}/{TEXTURE_DIR}/{HEIGHTMAP_FILE}"
-    collision = _sub(link, "collision", name="terrain_collision")
+    collision = sub_element(link, "collision", name="terrain_collision")
     if p.simulator == GZ:
-        _sub(collision, "pose", _fmt(hm.centre[0], hm.centre[1], hm.z_min, 0, 0, 0))
+        sub_element(collision, "pose", _fmt(hm.centre[0], hm.centre[1], hm.z_min, 0, 0, 0))
     chm = _heightmap(collision, uri, p, None)
-    _sub(chm, "sampling", str(p.sampling))
+    sub_element(chm, "sampling", str(p.sampling))
     # A floor under the terrain, its top at the heightmap's 0 (the floor of a map, the lowest
     # ground of a terrain): Bullet's height field (gz-sim: DART's bullet detector) loses its
     # grip on a box whose edges lie on the pixel grid (its 4-point manifold fills with the
     # side contacts of the flat triangles around it) and lets it sink through, then fall
     # forever; on the slab it rests. A slab, not a <plane>: dartsim makes a plane a 2100 m
     # cube, whose contacts are centimetres off in places (see _walls_model).
-    floor = _sub(link, "collision", name=FLOOR_COLLISION)
+    floor = sub_element(link, "collision", name=FLOOR_COLLISION)
     cx, cy, z0 = (hm.centre[0], hm.centre[1], hm.z_min) if p.simulator == GZ else (0, 0, 0)
-    _sub(floor, "pose", _fmt(cx, cy, z0 - GROUND_THICKNESS / 2, 0, 0, 0))
-    _sub(_sub(_sub(floor, "geometry"), "box"), "size", _fmt(p.size[0], p.size[1], GROUND_THICKNESS))
-    visual = _sub(link, "visual", name="terrain_visual")
+    sub_element(floor, "pose", _fmt(cx, cy, z0 - GROUND_THICKNESS / 2, 0, 0, 0))
+    sub_element(
+        sub_element(sub_element(floor, "geometry"), "box"),
+        "size",
+        _fmt(p.size[0], p.size[1], GROUND_THICKNESS),
+    )
+    visual = sub_element(link, "visual", name="terrain_visual")
     pos = (hm.centre[0], hm.centre[1], hm.z_min) if p.simulator == GZ else None
     vhm = _heightmap(visual, uri, p, pos)
     _textures(vhm, p, levels)
-    _sub(vhm, "use_terrain_paging", "false")
-    _sub(vhm, "sampling", str(p.sampling))
+    sub_element(vhm, "use_terrain_paging", "false")
+    sub_element(vhm, "sampling", str(p.sampling))
     return _bytes(sdf)
 
 
 def model_config(p: Placement, description: str) -> bytes:
     model = etree.Element("model")
-    _sub(model, "name", p.model_name)
-    _sub(model, "version", "1.0")
-    _sub(model, "sdf", "model.sdf", version=SDF_VERSION[p.simulator])
-    author = _sub(model, "author")
-    _sub(author, "name", "scan2terrain")
-    _sub(author, "email", "")
-    _sub(model, "description", description)
+    sub_element(model, "name", p.model_name)
+    sub_element(model, "version", "1.0")
+    sub_element(model, "sdf", "model.sdf", version=SDF_VERSION[p.simulator])
+    author = sub_element(model, "author")
+    sub_element(author, "name", "scan2terrain")
+    sub_element(author, "email", "")
+    sub_element(model, "description", description)
     return _bytes(model)
 
 
@@ -231,42 +236,42 @@ def tiled_world_sdf(
         raise ValueError("only gz-sim worlds can hold several heightmap tiles")
     sdf = etree.Element("sdf", version=SDF_VERSION[p.simulator])
     sdf.append(etree.Comment(comment))
-    world = _sub(sdf, "world", name=world_name)
+    world = sub_element(sdf, "world", name=world_name)
     if p.simulator == GZ:
         # Only DART collides with heightmaps in gz-sim, and DART's default (ODE) collision
         # detector has holes in heightmaps: ask for bullet.
-        physics = _sub(world, "physics", name="dart_bullet", type="dart")
-        _sub(physics, "max_step_size", "0.001")
-        _sub(physics, "real_time_factor", "1")
-        _sub(_sub(physics, "dart"), "collision_detector", "bullet")
+        physics = sub_element(world, "physics", name="dart_bullet", type="dart")
+        sub_element(physics, "max_step_size", "0.001")
+        sub_element(physics, "real_time_factor", "1")
+        sub_element(sub_element(physics, "dart"), "collision_detector", "bullet")
         for filename, name, options in GZ_SYSTEMS:
-            plugin = _sub(world, "plugin", filename=filename, name=name)
+            plugin = sub_element(world, "plugin", filename=filename, name=name)
             for key, value in options:
-                _sub(plugin, key, value)
+                sub_element(plugin, key, value)
     else:
-        physics = _sub(world, "physics", name="ode", type="ode")
-        _sub(physics, "max_step_size", "0.001")
-        _sub(physics, "real_time_factor", "1")
+        physics = sub_element(world, "physics", name="ode", type="ode")
+        sub_element(physics, "max_step_size", "0.001")
+        sub_element(physics, "real_time_factor", "1")
     if anchor is not None:
-        sph = _sub(world, "spherical_coordinates")
-        _sub(sph, "surface_model", "EARTH_WGS84")
-        _sub(sph, "world_frame_orientation", "ENU")
+        sph = sub_element(world, "spherical_coordinates")
+        sub_element(sph, "surface_model", "EARTH_WGS84")
+        sub_element(sph, "world_frame_orientation", "ENU")
         # 1e-9 degrees is 0.1 mm on the ground.
-        _sub(sph, "latitude_deg", decimal_text(anchor.latitude_deg, 9))
-        _sub(sph, "longitude_deg", decimal_text(anchor.longitude_deg, 9))
-        _sub(sph, "elevation", decimal_text(anchor.elevation, 3))
-        _sub(sph, "heading_deg", decimal_text(anchor.heading_deg, 6))
-    sun = _sub(world, "light", name="sun", type="directional")
-    _sub(sun, "cast_shadows", "true")
-    _sub(sun, "pose", "0 0 10 0 0 0")
-    _sub(sun, "diffuse", "0.8 0.8 0.8 1")
-    _sub(sun, "specular", "0.2 0.2 0.2 1")
-    _sub(sun, "direction", "-0.5 0.1 -0.9")
+        sub_element(sph, "latitude_deg", decimal_text(anchor.latitude_deg, 9))
+        sub_element(sph, "longitude_deg", decimal_text(anchor.longitude_deg, 9))
+        sub_element(sph, "elevation", decimal_text(anchor.elevation, 3))
+        sub_element(sph, "heading_deg", decimal_text(anchor.heading_deg, 6))
+    sun = sub_element(world, "light", name="sun", type="directional")
+    sub_element(sun, "cast_shadows", "true")
+    sub_element(sun, "pose", "0 0 10 0 0 0")
+    sub_element(sun, "diffuse", "0.8 0.8 0.8 1")
+    sub_element(sun, "specular", "0.2 0.2 0.2 1")
+    sub_element(sun, "direction", "-0.5 0.1 -0.9")
     for q in placements:
-        inc = _sub(world, "include")
-        _sub(inc, "uri", f"model://{q.model_name}")
-        _sub(inc, "name", q.model_name)
-        _sub(inc, "pose", "0 0 0 0 0 0")
+        inc = sub_element(world, "include")
+        sub_element(inc, "uri", f"model://{q.model_name}")
+        sub_element(inc, "name", q.model_name)
+        sub_element(inc, "pose", "0 0 0 0 0 0")
     return _bytes(sdf)
 
 
@@ -326,32 +331,32 @@ def _walls_model(
     """``<sdf><model>`` (static, at the origin) with one link holding the ground plane."""
     sdf = etree.Element("sdf", version=SDF_VERSION[p.simulator])
     sdf.append(etree.Comment(comment))
-    model = _sub(sdf, "model", name=p.model_name)
-    _sub(model, "static", "true")
-    link = _sub(model, "link", name="walls_link")
+    model = sub_element(sdf, "model", name=p.model_name)
+    sub_element(model, "static", "true")
+    link = sub_element(model, "link", name="walls_link")
     cx, cy = ground.centre
     # Collision: a slab whose top is z = 0, GROUND_MARGIN wider than the grid all round. Not a
     # <plane>: gz-physics' dartsim makes a plane a 2100 m cube (SDFFeatures.cc ConstructPlane),
     # and Bullet's cylinder-box contacts against it are off by centimetres in places (a wheel
     # sank 4.4 cm into Willow Garage's floor); against a box the size of the map they are exact.
-    collision = _sub(link, "collision", name=GROUND_COLLISION)
-    _sub(collision, "pose", _fmt(cx, cy, ground.z - GROUND_THICKNESS / 2, 0, 0, ground.yaw))
+    collision = sub_element(link, "collision", name=GROUND_COLLISION)
+    sub_element(collision, "pose", _fmt(cx, cy, ground.z - GROUND_THICKNESS / 2, 0, 0, ground.yaw))
     slab = (*(side + 2 * GROUND_MARGIN for side in ground.size), GROUND_THICKNESS)
-    _sub(_sub(_sub(collision, "geometry"), "box"), "size", _fmt(*slab))
-    visual = _sub(link, "visual", name="ground_visual")
-    _sub(visual, "pose", _fmt(cx, cy, ground.z, 0, 0, ground.yaw))
-    plane = _sub(_sub(visual, "geometry"), "plane")
-    _sub(plane, "normal", "0 0 1")
-    _sub(plane, "size", _fmt(*ground.size))
+    sub_element(sub_element(sub_element(collision, "geometry"), "box"), "size", _fmt(*slab))
+    visual = sub_element(link, "visual", name="ground_visual")
+    sub_element(visual, "pose", _fmt(cx, cy, ground.z, 0, 0, ground.yaw))
+    plane = sub_element(sub_element(visual, "geometry"), "plane")
+    sub_element(plane, "normal", "0 0 1")
+    sub_element(plane, "size", _fmt(*ground.size))
     _material(visual, GROUND_RGB)
     return sdf, link
 
 
 def _material(visual: etree._Element, rgb: tuple[float, float, float]) -> None:
-    material = _sub(visual, "material")
-    _sub(material, "ambient", _fmt(*rgb, 1))
-    _sub(material, "diffuse", _fmt(*rgb, 1))
-    _sub(material, "specular", "0.1 0.1 0.1 1")
+    material = sub_element(visual, "material")
+    sub_element(material, "ambient", _fmt(*rgb, 1))
+    sub_element(material, "diffuse", _fmt(*rgb, 1))
+    sub_element(material, "specular", "0.1 0.1 0.1 1")
 
 
 def mesh_model_sdf(p: Placement, ground: Ground, *, comment: str) -> bytes:
@@ -364,8 +369,8 @@ def mesh_model_sdf(p: Placement, ground: Ground, *, comment: str) -> bytes:
     sdf, link = _walls_model(p, ground, comment)
     base = f"model://{p.model_name}/{MESH_DIR}/{MESH_STEM}"
     for kind, ext in (("collision", "stl"), ("visual", "dae")):
-        el = _sub(link, kind, name=f"walls_{kind}")
-        _sub(_sub(_sub(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
+        el = sub_element(link, kind, name=f"walls_{kind}")
+        sub_element(sub_element(sub_element(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
         if kind == "visual":
             _material(el, WALL_RGB)
     return _bytes(sdf)
@@ -381,8 +386,8 @@ def voxels_model_sdf(
     for stem in stems:
         base = f"model://{p.model_name}/{MESH_DIR}/{stem}"
         for kind, ext in (("collision", "stl"), ("visual", "dae")):
-            el = _sub(link, kind, name=f"{stem}_{kind}")
-            _sub(_sub(_sub(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
+            el = sub_element(link, kind, name=f"{stem}_{kind}")
+            sub_element(sub_element(sub_element(el, "geometry"), "mesh"), "uri", f"{base}.{ext}")
             if kind == "visual" and not coloured:
                 _material(el, WALL_RGB)
     return _bytes(sdf)
@@ -415,9 +420,9 @@ def boxes_model_sdf(
         parts.append(f'<collision name="wall_{i}_collision">{pose}{geometry}</collision>')
     _extend(link, parts)
     if len(b):
-        visual = _sub(link, "visual", name="walls_visual")
+        visual = sub_element(link, "visual", name="walls_visual")
         uri = f"model://{p.model_name}/{MESH_DIR}/{MESH_STEM}.dae"
-        _sub(_sub(_sub(visual, "geometry"), "mesh"), "uri", uri)
+        sub_element(sub_element(sub_element(visual, "geometry"), "mesh"), "uri", uri)
         _material(visual, WALL_RGB)
     return _bytes(sdf)
 
