@@ -28,7 +28,14 @@ from scan2terrain.commands.correct import correct_plan, decide
 from scan2terrain.commands.maps import height_folder, occupancy_folder
 from scan2terrain.commands.replay import scan_replay
 from scan2terrain.commands.stream import cloud_bounds
-from scan2terrain.commands.voxels import Voxels, cast_hits, new_tree, octree_folder, point_columns
+from scan2terrain.commands.voxels import (
+    RayBatch,
+    Voxels,
+    cast_hits,
+    new_tree,
+    octree_folder,
+    point_columns,
+)
 from scan2terrain.config import DEFAULT_RESOLUTION, Config, cloud_resolution
 from scan2terrain.errors import ConfigError, InputError, OutputError, about
 from scan2terrain.exporters.pointcloud import FORMATS, cloud_bytes
@@ -128,7 +135,7 @@ def bag2world(
             return write_world_folder(folder, out, overwrite=overwrite)
         cfg = cfg.for_insert("raycast")
         columns = point_columns(cfg, cast=cfg.scans.insert != "endpoints")
-        recorder = BeamRecorder()
+        recorder = BeamRecorder(beams=cfg.output.fidelity)  # the trajectory, at least
         tree, ingest = bag_octree(bag, cfg, plan, progress, columns, recorder=recorder)
     voxels = Voxels.taken(tree)
     del tree  # its store is not needed for the world: free it first
@@ -203,24 +210,26 @@ def bag_octree(
         total = sum(bag.count(plan.scan_topics, plan.start_ns, plan.end_ns).values())
     batch = EndpointBatch(tree) if cfg.scans.insert == "endpoints" else None
     start = None
-    for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
-        if start is None:
-            start = start_of(scan)
-        if batch is None:
-            _insert(tree, scan, bag.path)
-        if batch is not None or columns is not None or recorder is not None:
-            hits = hits_of(scan)
+    with RayBatch(tree, bag.path) as rays:
+        for scan in posed_scans(bag, cfg.scans, plan, counts, max_range=cfg.octree.max_range):
+            if start is None:
+                start = start_of(scan)
+            if batch is None:
+                at = f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: "
+                rays.add(scan.points, scan.origin, scan.max_range, at)
+            wanted = batch is not None or columns is not None
+            hits = hits_of(scan) if wanted or (recorder and recorder.keeps_beams) else None
             if recorder is not None:
                 recorder.add(scan, hits)
-            if batch is not None:
+            if hits is not None and batch is not None:
                 with about(bag.path):
                     batch.add(hits)
-            if columns is not None:
+            if hits is not None and columns is not None:
                 columns.add(hits)
-        counts.inserted += 1
-        counts.points += len(scan.points)
-        if progress is not None:
-            progress(counts, total)
+            counts.inserted += 1
+            counts.points += len(scan.points)
+            if progress is not None:
+                progress(counts, total)
     if batch is not None:
         with about(bag.path):
             batch.flush()
@@ -230,11 +239,6 @@ def bag_octree(
     if plan.tf is not None:
         notes += plan.tf.problems()
     return tree, Ingest(tuple(notes), start)
-
-
-def _insert(tree: VoxelOctree, scan: Scan, source: Path) -> None:
-    with about(source, f"{scan.topic} at {scan.stamp_ns / 1e9:.3f}: "):
-        tree.insert_scan(scan.points, scan.origin, max_range=scan.max_range)
 
 
 class EndpointBatch:

@@ -30,10 +30,7 @@ from scan2terrain.readers.octomap_scan import is_scan_file, read_scans
 from scan2terrain.readers.points import within_reach
 from scan2terrain.replay.beams import BeamRecorder
 from scan2terrain.steps import PointColumns, ScanProgress, fill_holes, point_heights, solid_hint
-from scan2terrain.types import (
-    ScanCounts,
-    StartPose,
-)
+from scan2terrain.types import Scan, ScanCounts, StartPose
 from scan2terrain.world.folder import Result, WorldFolder, write_world_folder
 from scan2terrain.world.voxels import voxel_mesh_folder
 
@@ -218,21 +215,28 @@ def build_octree(
     o = cfg.octree
     tree = new_tree(cfg)
     counts = ScanCounts()
-    for scan in read_scans(source):
-        with about(source):
-            tree.insert_scan(scan.points, scan.origin, max_range=o.max_range)
-        if columns is not None or recorder is not None:
-            hits = cast_hits(scan.points, scan.origin, cfg)
-            if columns is not None:
-                columns.add(hits)
-            if recorder is not None:
-                recorder.add(scan, hits)
-        counts.messages += 1
-        counts.inserted += 1
-        counts.points += len(scan.points)
-        if progress is not None:
-            progress(counts, 0)
+    with RayBatch(tree, source) as rays:
+        for scan in read_scans(source):
+            rays.add(scan.points, scan.origin, o.max_range)
+            _scan_extras(scan, cfg, columns, recorder)
+            counts.messages += 1
+            counts.inserted += 1
+            counts.points += len(scan.points)
+            if progress is not None:
+                progress(counts, 0)
     return tree
+
+
+def _scan_extras(
+    scan: Scan, cfg: Config, columns: PointColumns | None, recorder: BeamRecorder | None
+) -> None:
+    """A ray-cast scan's hits into ``columns`` and its pose and beams into ``recorder``."""
+    if columns is not None or recorder is not None:
+        hits = cast_hits(scan.points, scan.origin, cfg)
+        if columns is not None:
+            columns.add(hits)
+        if recorder is not None:
+            recorder.add(scan, hits)
 
 
 def new_tree(cfg: Config) -> VoxelOctree:
@@ -246,6 +250,77 @@ def new_tree(cfg: Config) -> VoxelOctree:
         SensorModel(o.hit, o.miss, o.clamp_min, o.clamp_max, o.occupancy),
         max_bytes=cfg.max_memory << 20,
     )
+
+
+class RayBatch:
+    """Scans ray-cast into ``tree`` many at a time, in order, on a second thread.
+
+    ``add`` checks a scan's sensor origin at once (so a refusal names the scan) and queues it;
+    every ``POINTS`` points (or ``SCANS`` scans) the queue goes to ``tree.insert_scans`` on the
+    worker thread while the caller reads and poses the next scans: the kernels release the GIL,
+    so on two cores reading costs no time. One batch at a time, in the order given, so the
+    voxels are those of one ``insert_scan`` per scan, bit for bit. Use it as a context manager:
+    leaving it inserts what is queued and waits; leaving it by an exception waits for the
+    worker, then lets the exception go on.
+    """
+
+    POINTS = 1 << 17
+    SCANS = 512
+
+    def __init__(self, tree: VoxelOctree, source: Path) -> None:
+        self.tree, self.source = tree, source
+        self._points: list[NDArray[np.floating]] = []
+        self._origins: list[NDArray[np.float32]] = []
+        self._ranges: list[float] = []
+        self._n = 0
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree.insert")
+        self._running: Future[None] | None = None
+
+    def __enter__(self) -> RayBatch:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        try:
+            if kind is None:
+                self.flush()
+            self._wait()
+        finally:
+            self._pool.shutdown(wait=True)
+
+    def add(self, points: NDArray[np.floating], origin: NDArray[np.floating], max_range: float,
+            context: str = "") -> None:  # fmt: skip
+        """Queue one scan (``context``, e.g. its topic and stamp, leads a refusal of it)."""
+        with about(self.source, context):
+            o32 = self.tree.checked_origin(origin)
+        self._points.append(points)
+        self._origins.append(o32)
+        self._ranges.append(max_range)
+        self._n += len(points)
+        if self._n >= self.POINTS or len(self._points) >= self.SCANS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Hand the queued scans to the worker (after the batch before them)."""
+        if not self._points:
+            return
+        sizes = [len(p) for p in self._points]
+        pts = np.concatenate(self._points).astype(np.float32, copy=False)
+        offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
+        np.cumsum(sizes, out=offsets[1:])
+        origins, ranges = np.stack(self._origins), np.asarray(self._ranges)
+        self._points, self._origins, self._ranges, self._n = [], [], [], 0
+        self._wait()
+        self._running = self._pool.submit(self._insert, pts, offsets, origins, ranges)
+
+    def _insert(self, pts: NDArray[np.float32], offsets: NDArray[np.int64],
+                origins: NDArray[np.float32], ranges: NDArray[np.float64]) -> None:  # fmt: skip
+        with about(self.source):
+            self.tree.insert_scans(pts, offsets, origins, ranges)
+
+    def _wait(self) -> None:
+        if self._running is not None:
+            running, self._running = self._running, None
+            running.result()
 
 
 @contextmanager

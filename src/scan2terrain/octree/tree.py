@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from scan2terrain._numba import numba
 from scan2terrain.errors import InputError
-from scan2terrain.octree import _group, _points, _raybox, _raycast, _sparse, _table
+from scan2terrain.octree import _batch, _group, _points, _raybox, _raycast, _sparse, _table
 from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
@@ -163,6 +163,22 @@ class VoxelOctree:
         Points are handled as float32, as OctoMap does. NaN/inf points are dropped.
         """
         pts, dropped = self._points(points)
+        o32 = self.checked_origin(origin)
+        res = self.resolution
+        ends, kind, stats = _raycast.scan_rays(pts, o32, float(max_range), res)
+        self._next_scan()
+        k = self._kernels(len(pts))
+        if k is K.PARALLEL and (done := self._cast_box(o32, ends, kind)) is not None:
+            hits, misses = done
+        else:
+            hits, misses = self._cast_blocks(k, o32, ends, kind)
+        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
+
+    def checked_origin(
+        self, origin: NDArray[np.floating] | tuple[float, float, float]
+    ) -> NDArray[np.float32]:
+        """A sensor origin as float32, refused (InputError) unless 3 finite numbers in the
+        octree's key range."""
         o = np.asarray(origin, dtype=np.float64).reshape(-1)
         if o.shape != (3,) or not np.isfinite(o).all():
             raise InputError(None, f"sensor origin must be 3 finite numbers, got {origin!r}")
@@ -175,15 +191,93 @@ class VoxelOctree:
                 f"sensor origin {tuple(float(c) for c in o)} is outside the octree's key range "
                 f"(+-{half:g} m at {self.resolution} m)",
             )
-        res = self.resolution
-        ends, kind, stats = _raycast.scan_rays(pts, o32, float(max_range), res)
-        self._next_scan()
-        k = self._kernels(len(pts))
-        if k is K.PARALLEL and (done := self._cast_box(o32, ends, kind)) is not None:
-            hits, misses = done
-        else:
-            hits, misses = self._cast_blocks(k, o32, ends, kind)
-        return InsertStats(len(pts) + dropped, dropped, int(stats[2]), int(stats[1]), hits, misses)
+        return o32
+
+    def insert_scans(
+        self,
+        points: NDArray[np.floating],
+        offsets: NDArray[np.integer],
+        origins: NDArray[np.floating],
+        max_ranges: NDArray[np.floating] | float = -1.0,
+    ) -> InsertStats:
+        """Insert many scans in order, as many ``insert_scan`` calls would, voxel for voxel.
+
+        Scan s is ``points[offsets[s]:offsets[s + 1]]`` seen from ``origins[s]``, its beams cut
+        at ``max_ranges[s]`` (one number: every scan's). Scans of fewer than PARALLEL_MIN_RAYS
+        points go through one serial kernel call per run of them (_batch.py: each scan still
+        updates each voxel once, occupied winning, before the next starts); larger ones through
+        insert_scan. Returns the stats summed over the scans.
+        """
+        pts = self._points_any(points)
+        off = np.asarray(offsets, dtype=np.int64).reshape(-1)
+        n = len(off) - 1
+        if n < 0 or off[0] != 0 or off[-1] != len(pts) or (np.diff(off) < 0).any():
+            raise ValueError("offsets must rise from 0 to len(points)")
+        org = np.asarray(origins, dtype=np.float64)
+        if org.shape != (n, 3):
+            raise ValueError(f"origins must be ({n}, 3), got {org.shape}")
+        mr = np.broadcast_to(np.asarray(max_ranges, dtype=np.float64), (n,))
+        for s in np.flatnonzero(~self._in_key_range(org)):  # each refused as insert_scan would
+            try:
+                self.checked_origin(org[s])
+            except InputError as exc:
+                raise InputError(None, f"scan {s}: {exc.problem}") from exc
+        finite = np.isfinite(pts).all(axis=1)
+        dropped = len(pts) - int(finite.sum())
+        if dropped:  # NaN / inf points dropped, as insert_scan drops them
+            off = np.concatenate([[0], np.cumsum(finite)])[off]
+            pts = np.ascontiguousarray(pts[finite])
+        org32 = org.astype(np.float32)
+        sizes = np.diff(off)
+        total = np.zeros(_batch.N_STATS, dtype=np.int64)
+        big = np.flatnonzero(sizes >= PARALLEL_MIN_RAYS)
+        first = 0
+        for b in [*big.tolist(), n]:  # runs of small scans, each large scan on its own
+            if b > first:
+                self._insert_batch(pts, off[first : b + 1], org32[first:b], mr[first:b], total)
+            if b < n:
+                st = self.insert_scan(pts[off[b] : off[b + 1]], org[b], max_range=float(mr[b]))
+                total += (st.points, st.beams_cut, st.out_of_range, st.hits, st.misses)
+            first = b + 1
+        return InsertStats(
+            int(total[0]) + dropped, dropped, int(total[2]), int(total[1]), int(total[3]),
+            int(total[4]),
+        )  # fmt: skip
+
+    def _in_key_range(self, xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Rows of finite coordinates in the key range, computed as checked_origin does."""
+        with np.errstate(invalid="ignore", over="ignore"):
+            k = np.floor((1.0 / self.resolution) * xyz.astype(np.float32).astype(np.float64))
+            return np.asarray(((k >= -KEY_OFFSET) & (k < KEY_OFFSET)).all(axis=1))
+
+    def _insert_batch(
+        self,
+        pts: NDArray[np.float32],
+        off: NDArray[np.int64],
+        org32: NDArray[np.float32],
+        mr: NDArray[np.float64],
+        total: NDArray[np.int64],
+    ) -> None:
+        """A run of small scans through _batch.insert_batch (the sparse store, which new
+        blocks must adopt from, keeps them on insert_scan's path)."""
+        if self._sparse_counts[:, 0].any():
+            for s in range(len(org32)):
+                st = self.insert_scan(pts[off[s] : off[s + 1]], org32[s], max_range=float(mr[s]))
+                total += (st.points, st.beams_cut, st.out_of_range, st.hits, st.misses)
+            return
+        local = np.ascontiguousarray(pts[off[0] : off[-1]])
+        rel = np.ascontiguousarray(off - off[0])
+        state = np.zeros(4, dtype=np.int64)
+        cache_key = np.full(_batch.CACHE, -1, dtype=np.int64)
+        cache_slot = np.zeros(_batch.CACHE, dtype=np.int64)
+        while True:
+            status = _batch.insert_batch(
+                local, rel, org32, np.ascontiguousarray(mr), self.resolution, self._model,
+                self._values, state, total, cache_key, cache_slot, self._storage(),
+            )  # fmt: skip
+            if status == _table.DONE:
+                return
+            self._grow(int(status))
 
     def _cast_box(
         self, o32: NDArray[np.float32], ends: NDArray[np.float32], kind: NDArray[np.int8]

@@ -39,8 +39,10 @@ class BeamRecorder:
     """Collects the beams of posed scans as they stream past (:meth:`add`), and the sensor
     pose of every scan (the trajectory actually used), into :class:`~scan2terrain.types.Beams`."""
 
-    def __init__(self, budget: int = BEAM_BUDGET) -> None:
+    def __init__(self, budget: int = BEAM_BUDGET, *, beams: bool = True) -> None:
         self.budget = budget
+        #: False: the scans' poses only (no replay to make: the trajectory alone)
+        self.keeps_beams = beams
         self.level = 0
         self.returns = 0  #: beams with a return seen so far
         #: kept beams, per scan with any: (scan's place, vectors, place in the scan, hashes)
@@ -59,14 +61,16 @@ class BeamRecorder:
 
     def add(self, scan: Scan, hits: NDArray[np.float64] | None = None) -> None:
         """One posed scan (``hits``: its returns, when the caller has them already)."""
-        if hits is None:
-            hits = hits_of(scan)
         index = len(self._stamps)
         rotation = np.eye(3) if scan.rotation is None else np.asarray(scan.rotation)
         self._origins.append(np.asarray(scan.origin, dtype=np.float64))
         self._rotations.append(rotation)
         self._stamps.append(scan.stamp_ns)
         self._topics.append(scan.topic)
+        if not self.keeps_beams:
+            return
+        if hits is None:
+            hits = hits_of(scan)
         n = len(hits)
         if n == 0:
             return
