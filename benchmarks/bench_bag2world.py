@@ -1,4 +1,4 @@
-"""bag2world on a PointCloud2 bag, beside rosbags reading the same bag (by hand, not a test).
+"""bag2world on a PointCloud2 bag beside rosbags, and on laser logs beside OctoMap (by hand).
 
     python benchmarks/bench_bag2world.py [--quick] [--cache DIR]
         [--formats mcap,ros1,mcap-ros1,foxglove-protobuf]
@@ -32,11 +32,32 @@ Measured, and printed as tables:
    (1,000 and 10,000 clouds; --quick: 100 and 1,000), each in a fresh process (through a small
    launcher, so ru_maxrss is the child's own), ru_maxrss after the run. Target: the long bag
    peaks within 1.1x of the short one.
+4. Laser logs (issue 31), also with --quick: the bundled MIT CSAIL CARMEN log
+   (fixtures/logs/raw_carmen_mit_csail/mit-csail.clf.bz2, 1,988 scans) and a synthetic rosbag2
+   (MCAP) log of 5,000 LaserScans of 360 beams: a 40 x 20 m floor (a corridor, ten rooms with
+   doorways, a table and a cabinet in each), a robot at 0.45 m/s through every room, range_max
+   30 m (inf beyond), 1 cm noise, 0.5% NaN beams, /tf map -> odom (1 Hz) -> base_link (20 Hz),
+   /tf_static base_link -> laser, scan stamps between tf samples; ranges cast with
+   tests/bagmaker.py's cast_rays and written with its laserscan_msg, tf_msg and write_bag, once
+   into --cache. Ours: ``scan2terrain bag2world LOG -o OUT --no-filter --max-range 30
+   --resolution 0.05 --correct off --no-fidelity`` (OctoMap's settings; no correction nor
+   replay, so both sides read, pose, insert by ray casting and write) in a fresh process: wall
+   time and ru_maxrss (through a launcher); and the same command in this process with
+   VoxelOctree.insert_scan (and insert_scans, where it exists) wrapped: the insertion's seconds
+   and beams/s. OctoMap: octomap-python ``OcTree(0.05).insertPointCloud(points, origin,
+   maxrange)`` per scan over the same scans (scan2terrain's reader, posed_scans: float64
+   world-frame points with clear-only beams beyond the cut-off, the same cut-off, 30 m plus the
+   reader's slack), saved to an .npz and loaded by a fresh process that times the loop alone:
+   seconds, beams/s, ru_maxrss, and ru_maxrss minus that after loading the scans ('tree').
+   Targets: OctoMap's insertion time / our whole process >= 10, our peak <= OctoMap's, >= 2 M
+   beams/s through our insertion. --quick keeps the full 5,000-scan log (OctoMap's loop takes
+   ~35-45 s on it here). One run each: on a shared machine the ratios move by ~20%.
 
 Times are wall clock (time.perf_counter); "best" is the minimum over the repetitions and
 "median" their median; "cpu" is the process's CPU time (every thread) in the best run. The
 machine may be shared: the load average is printed at the start and the end, and rates on a
-loaded machine are lower bounds. --quick: 100-cloud laps, fewer repetitions, MCAP only.
+loaded machine are lower bounds. --quick: 100-cloud laps, fewer repetitions, MCAP only
+(the laser logs as in full mode).
 """
 
 from __future__ import annotations
@@ -644,6 +665,352 @@ def run_cli(bag: Path, out: Path) -> Timing:
     return Timing([seconds], [cpu])
 
 
+# --- laser logs: bag2world beside OctoMap's insertion ---------------------------------------------
+
+#: The MIT CSAIL CARMEN log bundled in fixtures (1,988 scans).
+CARMEN_LOG = ROOT / "fixtures" / "logs" / "raw_carmen_mit_csail" / "mit-csail.clf.bz2"
+#: The synthetic laser log: scans, beams per scan (360 degrees), range limit and voxel side
+#: (OctoMap's settings for 2D logs), scan and tf rates, robot speed.
+LOG_SCANS, LOG_BEAMS, LOG_RANGE_MAX, LOG_RESOLUTION = 5000, 360, 30.0, 0.05
+LOG_RATE_HZ, LOG_TF_HZ, LOG_SPEED = 10.0, 20.0, 0.45
+LOG_NOISE, LOG_DROPOUT = 0.01, 0.005  #: range noise sigma (m), share of beams with no return
+#: base_link -> laser (x, y, z, yaw) and map -> odom (x, y, yaw).
+LOG_MOUNT = (0.2, 0.0, 0.3, 0.0)
+LOG_MAP_TO_ODOM = (0.3, -0.2, 0.05)
+LOG_STAMP_OFFSET_NS = 17_000_000  #: scan stamps fall between tf samples (poses interpolated)
+#: Bumped when the building, the path or the writer changes (part of the cached logs' names).
+LOG_VERSION = 1
+#: bag2world's targets on laser logs (issue 31): x OctoMap's insertion time end to end, peak
+#: memory at most OctoMap's, M beams a second through insertion.
+TARGET_X_OCTOMAP, TARGET_PEAK_RATIO, TARGET_MBEAMS = 10.0, 1.0, 2.0
+#: The room centres along the corridor (x, metres); rooms are 8 m wide on both sides.
+ROOM_XS = (-16.0, -8.0, 0.0, 8.0, 16.0)
+
+
+def building_segments() -> NDArray[np.float64]:
+    """Wall segments (x0, y0, x1, y1; metres, map frame) of a 40 x 20 m floor: a 3 m corridor
+    along x with five 8 x 8.5 m rooms on each side, each with a 1 m doorway onto the corridor
+    and a table and a cabinet inside. Walls lie 0.025 m off multiples of 0.05 m (as
+    tests/bagmaker.py's room), so no wall falls on a voxel boundary."""
+    off = 0.025
+    x0, x1, y0, y1, cy = -20.0 + off, 20.0 + off, -10.0 + off, 10.0 + off, 1.5 + off
+    segs: list[tuple[float, float, float, float]] = [
+        (x0, y0, x1, y0),
+        (x1, y0, x1, y1),
+        (x1, y1, x0, y1),
+        (x0, y1, x0, y0),
+    ]
+    for side in (1.0, -1.0):
+        wall_y = side * cy
+        doors = [(cx - 0.5, cx + 0.5) for cx in ROOM_XS]
+        edges = [x0, *[e for d in doors for e in d], x1]
+        segs += [(a, wall_y, b, wall_y) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+        for dx in (-12.0, -4.0, 4.0, 12.0):  # room dividers
+            segs.append((dx + off, wall_y, dx + off, side * y1))
+        for cx in ROOM_XS:
+            for bx0, by0, bx1, by1 in (
+                (cx + 2.0, 6.5, cx + 3.2, 7.3),  # a table
+                (cx - 3.6, 3.0, cx - 3.0, 5.0),  # a cabinet against the divider
+            ):
+                ya, yb = sorted((side * by0 + off, side * by1 + off))
+                xa, xb = bx0 + off, bx1 + off
+                segs += [(xa, ya, xb, ya), (xb, ya, xb, yb), (xb, yb, xa, yb), (xa, yb, xa, ya)]
+    return np.array(segs, dtype=np.float64)
+
+
+def building_path() -> NDArray[np.float64]:
+    """The robot's closed route (waypoints x, y): east along the corridor into every other room
+    (through its door, a loop in the room, back out), then west into the rooms it skipped."""
+    pts: list[tuple[float, float]] = [(-18.0, 0.3)]
+    for lane, xs, first in ((0.3, ROOM_XS, 1.0), (-0.3, ROOM_XS[::-1], -1.0)):
+        for i, cx in enumerate(xs):
+            s = first if i % 2 == 0 else -first
+            pts += [(cx, lane), (cx, 3 * s), (cx - 1.5, 6 * s), (cx + 1.5, 6 * s), (cx, 3 * s)]
+            pts.append((cx, lane))
+        pts.append((18.0 if lane > 0 else -18.0, lane))
+        if lane > 0:
+            pts.append((18.0, -0.3))
+    return np.array(pts, dtype=np.float64)
+
+
+def route_poses(t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+    """x, y, yaw (map frame) of base_link at times ``t_s`` (seconds): the route driven at
+    LOG_SPEED, round and round, heading along the route (smoothed over 0.5 m)."""
+    way = building_path()
+    closed = np.vstack([way, way[:1]])
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed, axis=0).T))])
+
+    def at(s: NDArray[np.float64]) -> NDArray[np.float64]:
+        s = np.mod(s, cum[-1])
+        return np.column_stack([np.interp(s, cum, closed[:, 0]), np.interp(s, cum, closed[:, 1])])
+
+    s = LOG_SPEED * t_s
+    ahead, behind = at(s + 0.25), at(s - 0.25)
+    yaw = np.arctan2(ahead[:, 1] - behind[:, 1], ahead[:, 0] - behind[:, 0])
+    return np.column_stack([at(s), yaw])
+
+
+def laser_messages(n_scans: int) -> list[tuple[str, str, int, dict[str, Any]]]:
+    """The log's messages (topic, msgtype, record time ns, message dict): /scan LaserScan in
+    frame ``laser`` at LOG_RATE_HZ (ranges ray-cast against the building with
+    tests/bagmaker.py's cast_rays, float32, Gaussian noise, a few beams with no return (NaN),
+    nothing within LOG_RANGE_MAX: inf), /tf odom -> base_link at LOG_TF_HZ and map -> odom at
+    1 Hz, /tf_static base_link -> laser."""
+    bm = _bagmaker()
+    rng = np.random.default_rng(31)
+    segments = building_segments()
+    period = round(1e9 / LOG_RATE_HZ)
+    stamps = START_NS + LOG_STAMP_OFFSET_NS + np.arange(n_scans, dtype=np.int64) * period
+    base = route_poses((stamps - START_NS) / 1e9)
+    mx, my, mz, myaw = LOG_MOUNT
+    mount = np.array([mx, my, myaw])
+    sensor = bm._compose2d(base, mount)
+    inc = 2 * np.pi / LOG_BEAMS
+    local = -np.pi + inc * np.arange(LOG_BEAMS)
+    msgs: list[tuple[str, str, int, dict[str, Any]]] = []
+    for k0 in range(0, n_scans, 250):  # cast_rays is (scans x beams x segments): in slices
+        k1 = min(k0 + 250, n_scans)
+        dist = bm.cast_rays(sensor[k0:k1, :2], sensor[k0:k1, 2:3] + local[None, :], segments)
+        dist = dist + rng.normal(0.0, LOG_NOISE, dist.shape)
+        dist[rng.random(dist.shape) < LOG_DROPOUT] = np.nan
+        dist[dist > LOG_RANGE_MAX] = np.inf
+        for k in range(k0, k1):
+            msg = bm.laserscan_msg(
+                int(stamps[k]), "laser", -np.pi, inc, dist[k - k0], 0.05, LOG_RANGE_MAX
+            )
+            msgs.append(("/scan", bm.LASER_SCAN, int(stamps[k]) + LAG_NS, msg))
+    n_tf = math.ceil((stamps[-1] - START_NS) / 1e9 * LOG_TF_HZ) + 2
+    tf_stamps = START_NS + np.arange(n_tf, dtype=np.int64) * round(1e9 / LOG_TF_HZ)
+    m2o = np.array(LOG_MAP_TO_ODOM)
+    odom_base = bm._compose2d(bm._inverse2d(m2o), route_poses((tf_stamps - START_NS) / 1e9))
+    per_second = round(LOG_TF_HZ)
+    for j, stamp in enumerate(tf_stamps):
+        t = int(stamp)
+        x, y, yaw = odom_base[j]
+        edges = [("odom", "base_link", t, (x, y, 0.0), bm.yaw_quaternion(yaw))]
+        if j % per_second == 0:
+            edges.append(("map", "odom", t, (m2o[0], m2o[1], 0.0), bm.yaw_quaternion(m2o[2])))
+        msgs.append(("/tf", bm.TF_MESSAGE, t + 1_000_000, bm.tf_msg(edges)))
+    static = bm.tf_msg([("base_link", "laser", START_NS, (mx, my, mz), bm.yaw_quaternion(myaw))])
+    msgs.append(("/tf_static", bm.TF_MESSAGE, START_NS, static))
+    return msgs
+
+
+def ensure_laser_log(folder: Path, n_scans: int) -> tuple[Path, str]:
+    """The synthetic laser log of ``n_scans`` scans (rosbag2, MCAP storage, written with
+    tests/bagmaker.py's write_bag unless a complete one is cached) and what happened."""
+    scene = repr(
+        (
+            LOG_VERSION,
+            LOG_BEAMS,
+            LOG_RANGE_MAX,
+            LOG_RATE_HZ,
+            LOG_TF_HZ,
+            LOG_SPEED,
+            LOG_NOISE,
+            LOG_DROPOUT,
+            LOG_MOUNT,
+            LOG_MAP_TO_ODOM,
+        )
+    )
+    path = folder / f"laser_{n_scans}_{hashlib.sha1(scene.encode()).hexdigest()[:8]}"
+    done = path.with_name(path.name + ".done")
+    if done.exists():
+        return path, f"{path.name}: cached"
+    if path.exists():
+        shutil.rmtree(path)
+    t0 = time.perf_counter()
+    _bagmaker().write_bag(path, "mcap", laser_messages(n_scans))
+    done.touch()
+    return path, f"{path.name}: written in {time.perf_counter() - t0:.1f} s"
+
+
+def log_argv(log: Path, out: Path) -> list[str]:
+    """bag2world's arguments for a laser log: OctoMap's settings, correction and replay off."""
+    return [
+        "bag2world",
+        str(log),
+        "-o",
+        str(out),
+        "--overwrite",
+        "-q",
+        "--no-filter",
+        "--max-range",
+        format(LOG_RANGE_MAX, "g"),
+        "--resolution",
+        format(LOG_RESOLUTION, "g"),
+        "--correct",
+        "off",
+        "--no-fidelity",
+    ]
+
+
+def log_config() -> Any:
+    """The reader's part of log_argv as a Config (what posed_scans needs)."""
+    from scan2terrain.config import Config
+
+    cfg = Config()
+    cfg.octree.resolution = LOG_RESOLUTION
+    cfg.octree.max_range = LOG_RANGE_MAX
+    cfg.scans.correct = "off"
+    return cfg.validate()
+
+
+def write_scans_npz(log: Path, npz: Path) -> tuple[int, int]:
+    """The log's scans as scan2terrain's reader gives them to the octree (open_bag, plan_bag,
+    posed_scans, as commands/scans.py's bag_octree): world-frame float64 points (hits, and
+    clear-only beams beyond the cut-off), origins and cut-offs, in an .npz; (scans, beams)."""
+    from scan2terrain.readers.bag import open_bag
+    from scan2terrain.readers.scans import plan_bag, posed_scans
+    from scan2terrain.types import ScanCounts
+
+    cfg = log_config()
+    points, origins, ranges = [], [], []
+    with open_bag([log]) as bag:
+        plan = plan_bag(bag, cfg.scans, max_range=cfg.octree.max_range)
+        for scan in posed_scans(bag, cfg.scans, plan, ScanCounts(), max_range=LOG_RANGE_MAX):
+            points.append(np.ascontiguousarray(scan.points, dtype=np.float64))
+            origins.append(scan.origin)
+            ranges.append(scan.max_range)
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in points])]).astype(np.int64)
+    np.savez(
+        npz,
+        points=np.concatenate(points),
+        offsets=offsets,
+        origins=np.array(origins, dtype=np.float64),
+        max_ranges=np.array(ranges, dtype=np.float64),
+    )
+    return len(points), int(offsets[-1])
+
+
+def child_octomap(npz: Path) -> None:
+    """Runs in a fresh process: OctoMap's insertPointCloud over every scan of the .npz, timed
+    alone; its time and memory as JSON on stdout."""
+    import octomap
+
+    data = np.load(npz)
+    points, offsets = data["points"], data["offsets"]
+    origins, max_ranges = data["origins"], data["max_ranges"]
+    scans = np.split(points, offsets[1:-1])
+    origin_list = list(origins)
+    range_list = [float(r) for r in max_ranges]
+    tree = octomap.OcTree(LOG_RESOLUTION)
+    gc.collect()
+    base_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    for pts, origin, mr in zip(scans, origin_list, range_list, strict=True):
+        tree.insertPointCloud(pts, origin, maxrange=mr)
+    seconds = time.perf_counter() - t0
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    result = {
+        "seconds": seconds,
+        "base_kb": base_kb,
+        "peak_kb": peak_kb,
+        "leafs": int(tree.getNumLeafNodes()),
+        "tree_bytes": int(tree.memoryUsage()),
+    }
+    print(json.dumps(result))
+
+
+#: The launcher, reporting what the command in the child used (a fresh process has only its
+#: own children in RUSAGE_CHILDREN): wall seconds and ru_maxrss of the child, as JSON.
+_RUSAGE_LAUNCHER = (
+    "import json, resource, subprocess, sys, time\n"
+    "t0 = time.perf_counter()\n"
+    "done = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL)\n"
+    "seconds = time.perf_counter() - t0\n"
+    "peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss\n"
+    "print(json.dumps({'rc': done.returncode, 'seconds': seconds, 'peak_kb': peak}))\n"
+)
+
+
+def octomap_fresh(npz: Path) -> dict[str, Any]:
+    """child_octomap in a fresh process (via the launcher, so ru_maxrss is its own)."""
+    script = str(Path(__file__).resolve())
+    child = [sys.executable, script, "--octomap-child", str(npz)]
+    cmd = [sys.executable, "-S", "-c", _LAUNCHER, *child]
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
+
+
+def cli_fresh(log: Path, out: Path) -> dict[str, Any]:
+    """``scan2terrain bag2world LOG -o OUT ...`` (log_argv) in a fresh process: its wall time
+    (start-up, imports, numba cache, read, pose, insert, write) and ru_maxrss."""
+    exe = str(Path(sys.executable).with_name("scan2terrain"))
+    cmd = [sys.executable, "-S", "-c", _RUSAGE_LAUNCHER, exe, *log_argv(log, out)]
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    if result["rc"] != 0:
+        raise RuntimeError(f"bag2world on {log} exited with {result['rc']}")
+    return result
+
+
+def insertion_seconds(log: Path, out: Path) -> float:
+    """bag2world (the CLI's main, in this process, log_argv) with the octree's insertion
+    methods wrapped (VoxelOctree.insert_scan, and insert_scans where it exists; a call inside
+    another is not counted twice): the seconds spent inside them."""
+    from scan2terrain import cli
+    from scan2terrain.octree.tree import VoxelOctree
+
+    acc = [0.0]
+    depth = [0]
+
+    def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(fn)
+        def inner(*args: Any, **kwargs: Any) -> Any:
+            depth[0] += 1
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                depth[0] -= 1
+                if depth[0] == 0:
+                    acc[0] += time.perf_counter() - t0
+
+        return inner
+
+    names = [n for n in ("insert_scan", "insert_scans") if hasattr(VoxelOctree, n)]
+    saved = [(n, VoxelOctree.__dict__[n]) for n in names]
+    for name, original in saved:
+        setattr(VoxelOctree, name, wrap(original))
+    try:
+        gc.collect()
+        code = cli.main(log_argv(log, out))
+    finally:
+        for name, original in saved:
+            setattr(VoxelOctree, name, original)
+    if code != 0:
+        raise RuntimeError(f"bag2world on {log} exited with {code}")
+    return acc[0]
+
+
+def insertion_methods() -> str:
+    from scan2terrain.octree.tree import VoxelOctree
+
+    return " + ".join(n for n in ("insert_scan", "insert_scans") if hasattr(VoxelOctree, n))
+
+
+@dataclass(frozen=True)
+class LogRun:
+    name: str
+    scans: int
+    beams: int
+    ours: dict[str, Any]  #: cli_fresh's result
+    insert_s: float  #: our insertion, in this process
+    octomap: dict[str, Any]  #: child_octomap's result
+
+
+def laser_log_case(name: str, log: Path, folder: Path) -> LogRun:
+    npz = folder / f"scans_{log.name}.npz"
+    scans, beams = write_scans_npz(log, npz)
+    octo = octomap_fresh(npz)
+    npz.unlink()
+    ours = cli_fresh(log, folder / "out_log")
+    insert_s = insertion_seconds(log, folder / "out_log")
+    return LogRun(name, scans, beams, ours, insert_s, octo)
+
+
 # --- printing -------------------------------------------------------------------------------------
 
 
@@ -912,6 +1279,107 @@ def run(*, quick: bool, folder: Path, formats: list[str]) -> None:
         (f"peak memory {long_} / {short} clouds", f"{ratio:.3f}x", "<= 1.1x", ratio <= 1.1)
     )
 
+    # --- 4. laser logs --------------------------------------------------------------------------
+    print()
+    print(
+        "4. Laser logs: bag2world beside OctoMap's insertion (issue 31), one run each: "
+        f"{LOG_RESOLUTION:g} m voxels, beams cut at {LOG_RANGE_MAX:g} m"
+    )
+    print(f"   ours: scan2terrain {' '.join(log_argv(Path('LOG'), Path('OUT')))}")
+    print(
+        "      'whole s' and 'peak' of that command in a fresh process (start-up, imports, numba "
+        "cache, read, pose, insert by ray casting, write the world; ru_maxrss via a launcher);"
+    )
+    print(
+        f"      'insert s': the same command in this process, time inside VoxelOctree."
+        f"{insertion_methods()} (wrapped)"
+    )
+    print(
+        "   OctoMap: octomap-python OcTree(0.05).insertPointCloud(points, origin, maxrange) per "
+        "scan, the same scans (scan2terrain's reader:"
+    )
+    print(
+        "      float64 world-frame points, clear-only beams beyond the cut-off, the same cut-off "
+        "30 m + slack), loaded from an .npz in a fresh process; 'insert s' = the loop alone,"
+    )
+    print(
+        "      'peak' its ru_maxrss, 'tree' = ru_maxrss minus that after loading the scans "
+        "(Python, numpy, the data)"
+    )
+    synth, what = ensure_laser_log(folder, LOG_SCANS)
+    print(
+        f"   synthetic log: {what}; a 40 x 20 m floor (corridor, 10 rooms with doors, tables, "
+        f"cabinets), {LOG_BEAMS} beams over 360 deg,"
+    )
+    print(
+        f"      {LOG_RATE_HZ:g} Hz, range_max {LOG_RANGE_MAX:g} m (inf beyond), noise "
+        f"{LOG_NOISE * 100:g} cm, {LOG_DROPOUT:.1%} NaN; robot at {LOG_SPEED:g} m/s through "
+        f"every room; /tf map->odom->base_link ({LOG_TF_HZ:g} Hz), /tf_static ->laser"
+    )
+    # The numba kernels loaded once before timing anything in this process: a short log.
+    warm_log, _ = ensure_laser_log(folder, 20)
+    insertion_seconds(warm_log, folder / "out_log_warm")
+    runs = [
+        laser_log_case("MIT CSAIL (CARMEN)", CARMEN_LOG, folder),
+        laser_log_case(f"synthetic {LOG_SCANS:,} scans", synth, folder),
+    ]
+    print(
+        f"   {'log':<22} {'scans':>6} {'M beams':>8} {'side':<8} {'whole s':>8} {'insert s':>9} "
+        f"{'M beams/s':>9} {'peak MiB':>9} {'tree MiB':>9}"
+    )
+    for r in runs:
+        o, m = r.ours, r.octomap
+        mbeams = r.beams / 1e6
+        print(
+            f"   {r.name:<22} {r.scans:6,d} {mbeams:8.3f} {'ours':<8} {o['seconds']:8.2f} "
+            f"{r.insert_s:9.3f} {mbeams / r.insert_s:9.2f} {mb(o['peak_kb'] * 1024):>9}"
+        )
+        print(
+            f"   {'':<22} {'':>6} {'':>8} {'OctoMap':<8} {'':>8} {m['seconds']:9.3f} "
+            f"{mbeams / m['seconds']:9.2f} {mb(m['peak_kb'] * 1024):>9} "
+            f"{mb((m['peak_kb'] - m['base_kb']) * 1024):>9}"
+        )
+    print(
+        f"   {'log':<22} {'x OctoMap end to end':>21} {'insert x OctoMap':>17} "
+        f"{'peak ours/OctoMap':>18} {'ours/OctoMap tree':>18} {'M beams/s':>10}"
+    )
+    for r in runs:
+        o, m = r.ours, r.octomap
+        x_e2e = m["seconds"] / o["seconds"]
+        x_ins = m["seconds"] / r.insert_s
+        peak = o["peak_kb"] / m["peak_kb"]
+        tree = o["peak_kb"] / max(m["peak_kb"] - m["base_kb"], 1)
+        rate = r.beams / r.insert_s / 1e6
+        print(
+            f"   {r.name:<22} {x_e2e:10.2f} {verdict(x_e2e >= TARGET_X_OCTOMAP):>10} "
+            f"{x_ins:17.2f} {peak:13.2f} {verdict(peak <= TARGET_PEAK_RATIO):>4} {tree:18.2f} "
+            f"{rate:5.2f} {verdict(rate >= TARGET_MBEAMS):>4}"
+        )
+        summary += [
+            (
+                f"{r.name}: x OctoMap end to end",
+                f"{x_e2e:.2f}x",
+                f">= {TARGET_X_OCTOMAP:g}x",
+                x_e2e >= TARGET_X_OCTOMAP,
+            ),
+            (
+                f"{r.name}: peak / OctoMap's",
+                f"{peak:.2f}x",
+                f"<= {TARGET_PEAK_RATIO:g}x",
+                peak <= TARGET_PEAK_RATIO,
+            ),
+            (
+                f"{r.name}: insertion",
+                f"{rate:.2f} M/s",
+                f">= {TARGET_MBEAMS:g} M/s",
+                rate >= TARGET_MBEAMS,
+            ),
+        ]
+    print(
+        f"   targets (issue 31): OctoMap's insertion time / our whole process >= "
+        f"{TARGET_X_OCTOMAP:g}; our peak <= OctoMap's (whole processes); >= "
+        f"{TARGET_MBEAMS:g} M beams/s through insertion"
+    )
     print()
     print("Summary (rates from the best run)")
     for name, shown, goal, ok in summary:
@@ -949,9 +1417,13 @@ def main() -> None:
         "(the ROS1 bag rewritten as ROS1 MCAP) (default: mcap,ros1; --quick: mcap)",
     )
     parser.add_argument("--child", nargs=3, metavar=("BAG", "OUT", "WARM"), help=argparse.SUPPRESS)
+    parser.add_argument("--octomap-child", type=Path, metavar="NPZ", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         child_memory(*(Path(p) for p in args.child))
+        return
+    if args.octomap_child:
+        child_octomap(args.octomap_child)
         return
     formats = (args.formats or ("mcap" if args.quick else "mcap,ros1")).split(",")
     if any(f not in FORMAT_NAMES for f in formats):
