@@ -11,8 +11,9 @@ one insert_scan per scan gives, bit for bit.
 
 Serial, so the answer cannot depend on the number of threads; the caller overlaps it with reading
 the next batch instead. A scan's blocks are found through a small direct-mapped cache of block
--> slot in front of the hash table, stamped by scan: a ray's next block is most often one an
-earlier ray of the same scan entered.
+-> slot in front of the hash table, its entries valid for the scan that wrote them (a block's
+first touch in a scan goes through the table, which records it as touched): a ray's next
+block is most often one an earlier ray of the same scan entered.
 
 The kernel is resumable: when the store is full it stops with a NEED_* status and ``state`` (the
 scan, its phase, the ray) says where to go on once tree.py has grown the arrays.
@@ -42,33 +43,14 @@ from scan2terrain.octree._table import (
 SCAN, PHASE, NEXT, FIRST_NEW = 0, 1, 2, 3
 #: Phases of a scan: hits marked, rays cast, updates applied.
 HITS, RAYS = 1, 2
-#: Entries of the block cache (a power of two).
-CACHE = 4096
+#: Entries of the block cache (a power of two; 4 int64 each: 32 KB, L1's size).
+CACHE = 1024
 #: stats[]: points, beams cut at max_range, end points outside the key range, hits, misses.
 N_STATS = 5
 
 
-@nb.njit(inline="always", **JIT)
-def _cached_slot(
-    bx, by, bz, cache_key, cache_slot, block_xyz, stamp, table_keys, table_slots, counts, touched
-):
-    """``_slot`` through the cache: an entry holds a block id and its slot, and is only
-    trusted for the scan that wrote it (``stamp`` of the slot is this scan's), so the first
-    touch of a block in each scan still goes through ``_slot`` and lands in ``touched``."""
-    bk = block_id(bx, by, bz)
-    at = (bx * 73856093 ^ by * 19349663 ^ bz * 83492791) & (CACHE - 1)
-    if cache_key[at] == bk:
-        cs = cache_slot[at]
-        if stamp[cs] == counts[STAMP]:
-            return cs
-    cs = _slot(bk, bx, by, bz, block_xyz, stamp, table_keys, table_slots, counts, touched)
-    cache_key[at] = bk
-    cache_slot[at] = cs
-    return cs
-
-
 @nb.njit(**JIT)
-def _mark_hits(ends, kind, resolution, start, cache_key, cache_slot, storage):
+def _mark_hits(ends, kind, resolution, start, storage):
     """Set the hit bit of every end point that is a hit, from ``start``; resumable."""
     bits, block_xyz, stamp, table_keys, table_slots, counts, touched = storage
     res_factor = 1.0 / resolution
@@ -81,26 +63,16 @@ def _mark_hits(ends, kind, resolution, start, cache_key, cache_slot, storage):
         kx = coord_to_key(np.float64(ends[i, 0]), res_factor)
         ky = coord_to_key(np.float64(ends[i, 1]), res_factor)
         kz = coord_to_key(np.float64(ends[i, 2]), res_factor)
-        cs = _cached_slot(
-            kx >> 3,
-            ky >> 3,
-            kz >> 3,
-            cache_key,
-            cache_slot,
-            block_xyz,
-            stamp,
-            table_keys,
-            table_slots,
-            counts,
-            touched,
-        )
+        bx, by, bz = kx >> 3, ky >> 3, kz >> 3
+        bk = block_id(bx, by, bz)
+        cs = _slot(bk, bx, by, bz, block_xyz, stamp, table_keys, table_slots, counts, touched)
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
         bits[cs, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
     return ends.shape[0], DONE
 
 
 @nb.njit(**JIT)
-def _cast_rays(origin, ends, kind, resolution, start, cache_key, cache_slot, storage):
+def _cast_rays(origin, ends, kind, resolution, start, cache, storage):
     """computeRayKeys for every clearing ray from ``start``, setting miss bits (plane 8);
     resumable: a ray starts only when the blocks it could enter fit the store."""
     bits, block_xyz, stamp, table_keys, table_slots, counts, touched = storage
@@ -121,24 +93,23 @@ def _cast_rays(origin, ends, kind, resolution, start, cache_key, cache_slot, sto
         ray = ray_start(ox, oy, oz, ends[i, 0], ends[i, 1], ends[i, 2], resolution)
         kx, ky, kz, ekx, eky, ekz, sx, sy, sz, tx, ty, tz, ddx, ddy, ddz, length = ray
         ck, cs = np.int64(-1), np.int64(-1)
+        scan = counts[STAMP]
         while True:
             bx, by, bz = kx >> 3, ky >> 3, kz >> 3
             bk = block_id(bx, by, bz)
             if bk != ck:
+                # The cache, written out: a call here, even inlined, costs more than the steps.
                 ck = bk
-                cs = _cached_slot(
-                    bx,
-                    by,
-                    bz,
-                    cache_key,
-                    cache_slot,
-                    block_xyz,
-                    stamp,
-                    table_keys,
-                    table_slots,
-                    counts,
-                    touched,
-                )
+                at = (bx * 73856093 ^ by * 19349663 ^ bz * 83492791) & (CACHE - 1)
+                if cache[at, 0] == bk and cache[at, 2] == scan:  # one row: one cache line
+                    cs = cache[at, 1]
+                else:
+                    cs = _slot(
+                        bk, bx, by, bz, block_xyz, stamp, table_keys, table_slots, counts, touched
+                    )
+                    cache[at, 0] = bk
+                    cache[at, 1] = cs
+                    cache[at, 2] = scan
             local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
             bits[cs, 8 + (local >> 6)] |= np.uint64(1) << np.uint64(local & 63)
             kx, ky, kz, tx, ty, tz = dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)
@@ -213,8 +184,7 @@ def insert_batch(
     values,
     state,
     stats,
-    cache_key,
-    cache_slot,
+    cache,
     storage,
 ):
     """Insert scans ``state[SCAN]`` .. end in order: scan s is ``points[offsets[s]:offsets[s +
@@ -238,17 +208,13 @@ def insert_batch(
             state[PHASE] = HITS
             state[NEXT] = 0
         if state[PHASE] == HITS:
-            at, status = _mark_hits(
-                ends, kind, resolution, state[NEXT], cache_key, cache_slot, storage
-            )
+            at, status = _mark_hits(ends, kind, resolution, state[NEXT], storage)
             state[NEXT] = at
             if status != DONE:
                 return status
             state[PHASE] = RAYS
             state[NEXT] = 0
-        at, status = _cast_rays(
-            origin, ends, kind, resolution, state[NEXT], cache_key, cache_slot, storage
-        )
+        at, status = _cast_rays(origin, ends, kind, resolution, state[NEXT], cache, storage)
         state[NEXT] = at
         if status != DONE:
             return status

@@ -268,12 +268,11 @@ class VoxelOctree:
         local = np.ascontiguousarray(pts[off[0] : off[-1]])
         rel = np.ascontiguousarray(off - off[0])
         state = np.zeros(4, dtype=np.int64)
-        cache_key = np.full(_batch.CACHE, -1, dtype=np.int64)
-        cache_slot = np.zeros(_batch.CACHE, dtype=np.int64)
+        cache = np.full((_batch.CACHE, 4), -1, dtype=np.int64)  # block id, slot, scan
         while True:
             status = _batch.insert_batch(
                 local, rel, org32, np.ascontiguousarray(mr), self.resolution, self._model,
-                self._values, state, total, cache_key, cache_slot, self._storage(),
+                self._values, state, total, cache, self._storage(),
             )  # fmt: skip
             if status == _table.DONE:
                 return
