@@ -20,30 +20,41 @@ from numpy.typing import NDArray
 
 def faces_at_hits(walls: NDArray[np.bool_], free: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """The wall cells of a (H, W) grid on a (2H, 2W) grid of half their size, each face toward
-    known-free cells moved half a cell into the wall where the wall goes on behind it."""
-    w: NDArray[np.bool_] = np.repeat(np.repeat(walls, 2, axis=0), 2, axis=1)
-    f: NDArray[np.bool_] = np.repeat(np.repeat(free, 2, axis=0), 2, axis=1)
-    keep: NDArray[np.bool_] = w.copy()
-    for axis in (0, 1):
-        for step in (1, -1):
-            in_front = _shifted(f, step, axis)  # free at c - step
-            behind = _shifted(w, -step, axis)  # wall at c + step
-            beyond = _shifted(f, -2 * step, axis)  # free at c + 2 step: a wall seen from both
-            keep &= ~(w & in_front & behind & ~beyond)
-    return keep
+    known-free cells moved half a cell into the wall where the wall goes on behind it.
 
+    Worked out per wall cell (memory: the output and a few arrays per wall cell, not copies of
+    the fine grid): a fine cell's test looks at most two fine cells, so one coarse cell, away.
+    """
+    walls = np.asarray(walls, dtype=bool)
+    free = np.asarray(free, dtype=bool)
+    h, w = walls.shape
+    out = np.zeros((2 * h, 2 * w), dtype=bool)
+    rows, cols = np.nonzero(walls)
 
-def _shifted(a: NDArray[np.bool_], step: int, axis: int) -> NDArray[np.bool_]:
-    """``out[c] = a[c - step]`` along ``axis``, False beyond the edge."""
-    out = np.zeros_like(a)
-    n = a.shape[axis]
-    if abs(step) >= n:
-        return out
-    src = [slice(None)] * a.ndim
-    dst = [slice(None)] * a.ndim
-    if step > 0:
-        src[axis], dst[axis] = slice(0, n - step), slice(step, n)
-    else:
-        src[axis], dst[axis] = slice(-step, n), slice(0, n + step)
-    out[tuple(dst)] = a[tuple(src)]
+    def at(grid: NDArray[np.bool_], dr: int, dc: int) -> NDArray[np.bool_]:
+        """``grid`` at each wall cell's neighbour (dr, dc), False beyond the edge."""
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        got = np.zeros(len(rows), dtype=bool)
+        got[inside] = grid[r[inside], c[inside]]
+        return got
+
+    for a in (0, 1):  # the fine cell (2 row + a, 2 col + b) of each wall cell
+        for b in (0, 1):
+            keep = np.ones(len(rows), dtype=bool)
+            for axis, sub in ((0, a), (1, b)):
+                for step in (1, -1):
+                    # The fine cells -step (in front), +step (behind) and +2 step (beyond)
+                    # away along ``axis`` lie in the coarse cells (sub + k) // 2 away.
+                    d_front, d_behind, d_beyond = ((sub + k) // 2 for k in (-step, step, 2 * step))
+                    in_front = at(free, *_along(axis, d_front))
+                    behind = at(walls, *_along(axis, d_behind))
+                    beyond = at(free, *_along(axis, d_beyond))
+                    keep &= ~(in_front & behind & ~beyond)
+            out[2 * rows[keep] + a, 2 * cols[keep] + b] = True
     return out
+
+
+def _along(axis: int, d: int) -> tuple[int, int]:
+    """The (row, column) offset of ``d`` cells along ``axis``."""
+    return (d, 0) if axis == 0 else (0, d)
