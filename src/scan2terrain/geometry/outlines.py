@@ -201,27 +201,36 @@ def _boundary_edges(occ: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[
     """Directed boundary edges (occupied on the left), sorted by start vertex then direction.
 
     Returns the start vertex ids ``y * (W + 1) + x`` and the directions (0..3, see ``_DX``).
+    Found from the occupied cells and their four neighbours (memory follows the occupied cells,
+    not the grid: a fine wall grid is mostly free).
     """
     h, w = occ.shape
-    p = np.zeros((h + 2, w + 2), dtype=bool)
-    p[1:-1, 1:-1] = occ
-    below, above = p[:-1, 1:-1], p[1:, 1:-1]  # (H + 1, W): cells under/over row line y
-    left, right = p[1:-1, :-1], p[1:-1, 1:]  # (H, W + 1): cells left/right of column line x
     stride = w + 1
+    rows, cols = np.nonzero(occ)
+
+    def free(dr: int, dc: int) -> NDArray[np.bool_]:
+        """Whether each occupied cell's neighbour (dr, dc) is free (outside the grid is)."""
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        out: NDArray[np.bool_] = ~inside
+        out[inside] = ~occ[r[inside], c[inside]]
+        return out
+
     parts_v: list[NDArray[np.int64]] = []
     parts_d: list[NDArray[np.int64]] = []
-    for mask, dx, dy, d in (
-        (above & ~below, 0, 0, 0),  # +x, starts at (x, y)
-        (right & ~left, 0, 1, 3),  # -y, starts at (x, y + 1)
-        (left & ~right, 0, 0, 1),  # +y, starts at (x, y)
-        (below & ~above, 1, 0, 2),  # -x, starts at (x + 1, y)
+    for (dr, dc), (dy, dx), d in (
+        ((-1, 0), (0, 0), 0),  # free below: +x along row line y, from (x, y)
+        ((0, -1), (1, 0), 3),  # free to the left: -y along column line x, from (x, y + 1)
+        ((0, 1), (0, 1), 1),  # free to the right: +y along column line x + 1, from (x + 1, y)
+        ((1, 0), (1, 1), 2),  # free above: -x along row line y + 1, from (x + 1, y + 1)
     ):
-        y, x = np.nonzero(mask)
-        parts_v.append((y + dy) * stride + (x + dx))
-        parts_d.append(np.full(len(y), d, dtype=np.int64))
-    vid = np.concatenate(parts_v)
+        edge = free(dr, dc)
+        parts_v.append((rows[edge] + dy) * stride + (cols[edge] + dx))
+        parts_d.append(np.full(int(edge.sum()), d, dtype=np.int64))
+    vid = np.concatenate(parts_v).astype(np.int64, copy=False)
     dirs = np.concatenate(parts_d)
-    order = np.argsort(vid * 4 + dirs, kind="stable")
+    # Keys are unique (one edge per start vertex and direction).
+    order = np.argsort(vid * 4 + dirs)
     return vid[order], dirs[order]
 
 
