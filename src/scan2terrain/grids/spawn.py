@@ -79,14 +79,12 @@ def find_spawn(  # noqa: PLR0913 (the height grid's layers, each an argument)
     ``samples``: the heights are samples Gazebo interpolates between (a heightmap), not flat
     cells (see the module docstring). ``around``: the ground beyond the grid, searched too.
     """
-    h = np.asarray(heights, dtype=np.float64)
+    h = np.asarray(heights)
     if h.ndim != 2 or h.size == 0:
         raise ValueError(f"heights must be a non-empty 2D array, got shape {h.shape}")
     r = float(resolution)
     if preferred is None:
         preferred, why = _default_point(h.shape[0], h.shape[1], r, origin)
-    ok = np.ones(h.shape, dtype=bool) if ground is None else np.asarray(ground, dtype=bool)
-    pref = ok if free is None else ok & free
     if around is not None:
         left, bottom, right, top = (min(max(n, 0), AROUND_MAX) for n in around.cells)
         around = Around((left, bottom, right, top), around.height)
@@ -97,26 +95,29 @@ def find_spawn(  # noqa: PLR0913 (the height grid's layers, each an argument)
     half = max(1, math.ceil(reach) if samples else math.ceil(reach + 0.5) - 1)
     row, col = _cell_of(preferred, r, origin)
     core = (slice(0, h.shape[0]), slice(0, h.shape[1]))  # the grid itself
+    layers = [None if a is None else np.asarray(a, dtype=bool) for a in (ground, free)]
+    if any(a is not None and a.shape != h.shape for a in layers):
+        raise ValueError(f"ground and free must have the heights' shape {h.shape}")
+    field = _Field(h, layers[0], layers[1], (0, 0), (h.shape[0], h.shape[1]), 0.0)
     if around is not None:
-        h, ok, pref, origin, core = _widen(
-            h, ok=ok, pref=pref, origin=origin, r=r, around=around, half=half, cell=(row, col)
-        )
+        field, origin, core = _widen(field, origin=origin, r=r, around=around, half=half,
+                                     cell=(row, col))  # fmt: skip
         row, col = row + core[0].start, col + core[1].start
-    rows, cols = h.shape
+    rows, cols = field.shape
     near = max(half + 1, math.ceil(min(NEAR / r, max(rows, cols))))
     window = (
         slice(max(0, min(row, rows - 1) - near), min(rows, max(row, 0) + near + 1)),
         slice(max(0, min(col, cols - 1) - near), min(cols, max(col, 0) + near + 1)),
     )
-    (pr, pc), z, how = _search(h, ok, pref, half=half, r=r, row=row, col=col, part=window)
+    (pr, pc), z, how = _search(field, half=half, r=r, row=row, col=col, part=window)
     if how != "free" and window != (slice(0, rows), slice(0, cols)):
         better = _search(
-            h, ok, pref, half=half, r=r, row=row, col=col, part=(slice(0, rows), slice(0, cols))
+            field, half=half, r=r, row=row, col=col, part=(slice(0, rows), slice(0, cols))
         )
         if _RANK[better[2]] < _RANK[how]:
             (pr, pc), z, how = better
     if r > FOOTPRINT / 4:  # coarse cells: the surface between samples, not their maximum
-        z = ground_under(h, pr, pc, FOOTPRINT / 2 / r)
+        z = ground_under(field, pr, pc, FOOTPRINT / 2 / r)
     x, y = origin.transform(np.array((pc + 0.5) * r), np.array((pr + 0.5) * r))
     on_grid = all(
         c.start <= i - half and i + half < c.stop for i, c in zip((pr, pc), core, strict=True)
@@ -124,38 +125,81 @@ def find_spawn(  # noqa: PLR0913 (the height grid's layers, each an argument)
     if how in _HOW:
         text = _BESIDE if how == "level" and not on_grid else _HOW[how]
     else:
-        text = _none(how, h.shape, r, samples)
+        text = _none(how, field.shape, r, samples)
     where = f"{why}: " if why else ""
     return Spawn(float(x), float(y), z, float(yaw), f"{where}{text}", ground=how in _GROUND)
 
 
+@dataclass(frozen=True)
+class _Field:
+    """The grid and the ground around it, read a block at a time (never copied whole: a grid
+    may hold millions of cells, a spot's search needs a band of them at once).
+
+    ``heights`` (H, W) as given (metres; blocks come as float64), ``ground`` / ``free`` (H, W)
+    or None (all ground; free where ground). The grid lies ``pad`` = (rows, columns) into the
+    whole, of ``shape``; beyond it the ground is level at ``height``, ground, never known free.
+    """
+
+    heights: NDArray[Any]
+    ground: NDArray[np.bool_] | None
+    free: NDArray[np.bool_] | None
+    pad: tuple[int, int]
+    shape: tuple[int, int]
+    height: float
+
+    def _block(
+        self, src: NDArray[Any] | None, rows: slice, cols: slice, fill: float, dtype: type
+    ) -> NDArray[Any]:
+        """Rows and columns of the whole from ``src`` (None: True) on the grid, ``fill``
+        beyond it."""
+        out = np.full((rows.stop - rows.start, cols.stop - cols.start), fill, dtype=dtype)
+        if src is None:
+            src_rows, src_cols = self.heights.shape
+        else:
+            src_rows, src_cols = src.shape
+        b, left = self.pad
+        r0, r1 = max(rows.start - b, 0), min(rows.stop - b, src_rows)
+        c0, c1 = max(cols.start - left, 0), min(cols.stop - left, src_cols)
+        if r0 < r1 and c0 < c1:
+            at = (
+                slice(r0 + b - rows.start, r1 + b - rows.start),
+                slice(c0 + left - cols.start, c1 + left - cols.start),
+            )
+            out[at] = True if src is None else src[r0:r1, c0:c1]
+        return out
+
+    def __getitem__(self, key: tuple[slice, slice]) -> NDArray[np.float64]:
+        """Heights (float64) of a block: slices with starts and stops within ``shape``."""
+        rows, cols = key
+        return self._block(self.heights, rows, cols, self.height, np.float64)
+
+    def layers(
+        self, rows: slice, cols: slice
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+        """Heights, ground and preferred (known free ground) cells of a block."""
+        ground = self._block(self.ground, rows, cols, True, bool)
+        # Known free: ``free`` where given, else all the grid's ground; nothing beyond the grid.
+        pref = ground & self._block(self.free, rows, cols, False, bool)
+        return self[rows, cols], ground, pref
+
+
 def _widen(
-    h: NDArray[np.float64],
-    *,
-    ok: NDArray[np.bool_],
-    pref: NDArray[np.bool_],
-    origin: Pose2D,
-    r: float,
-    around: Around,
-    half: int,
-    cell: tuple[int, int],
-) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], Pose2D, tuple[slice, slice]]:
+    field: _Field, *, origin: Pose2D, r: float, around: Around, half: int, cell: tuple[int, int]
+) -> tuple[_Field, Pose2D, tuple[slice, slice]]:
     """The grid with the ground around it (level, ground, never known free), its origin, and
     where the grid lies in it. Only as much of that ground as a spot can need: a square just
     off the edge (2 half + 1 cells), or out to the preferred ``cell`` (row, column of the grid)
     when that lies beyond it."""
     row, col = cell
-    rows, cols = h.shape
+    rows, cols = field.shape
     beyond = (-col, -row, col - cols + 1, row - rows + 1)  # how far out the point lies
     left, bottom, right, top = (
         max(0, min(n, 2 * half + 2 + max(0, b))) for n, b in zip(around.cells, beyond, strict=True)
     )
-    width = ((bottom, top), (left, right))
     x0, y0 = origin.transform(np.array(-left * r), np.array(-bottom * r))
+    shape = (bottom + rows + top, left + cols + right)
     return (
-        np.pad(h, width, constant_values=around.height),
-        np.pad(ok, width, constant_values=True),
-        np.pad(pref, width, constant_values=False),
+        _Field(field.heights, field.ground, field.free, (bottom, left), shape, around.height),
         Pose2D(float(x0), float(y0), origin.yaw),
         (slice(bottom, bottom + rows), slice(left, left + cols)),
     )
@@ -217,10 +261,51 @@ def _cell_of(point: tuple[float, float], r: float, origin: Pose2D) -> tuple[int,
     return math.floor(v / r), math.floor(u / r)
 
 
+#: Cells of a band of the search (a few float64 arrays of it at once: megabytes, not the grid).
+BAND_CELLS = 1 << 17
+
+
+class _Nearest:
+    """The best cell seen so far, over bands in row order: the smallest ``(key, dist2)``,
+    first in row-major order among equals (as one ``argmin`` over the whole part)."""
+
+    def __init__(self) -> None:
+        self.found = False  # any candidate
+        self.nan = False  # a key was NaN: the whole part's min is NaN
+        self.best: tuple[float, int, int, float] | None = None  # key, dist2, flat index, top
+
+    def offer(
+        self,
+        candidates: NDArray[np.bool_],
+        key: NDArray[np.float64] | None,
+        dist2: NDArray[np.int64],
+        top: NDArray[np.float64],
+        first: int,
+    ) -> None:
+        """One band's cells (``first``: the part's flat index of its first cell). ``key``
+        None: the nearest candidate; else the nearest cell of the smallest key, the key being
+        ``key`` where a cell is a candidate and infinite elsewhere."""
+        self.found = self.found or bool(candidates.any())
+        if key is None:
+            if not candidates.any():
+                return
+            k = 0.0
+            at = np.where(candidates, dist2, np.iinfo(np.int64).max)
+        else:
+            keyed = np.where(candidates, key, np.inf)
+            k = float(keyed.min())
+            if math.isnan(k):
+                self.nan = True
+                return
+            at = np.where(keyed == k, dist2, np.iinfo(np.int64).max)
+        i = int(np.argmin(at))
+        d = int(at.reshape(-1)[i])
+        if self.best is None or (k, d) < self.best[:2]:
+            self.best = (k, d, first + i, float(top.reshape(-1)[i]))
+
+
 def _search(
-    whole: NDArray[np.float64],
-    whole_ground: NDArray[np.bool_],
-    whole_free: NDArray[np.bool_],
+    field: _Field,
     *,
     half: int,
     r: float,
@@ -228,46 +313,60 @@ def _search(
     col: int,
     part: tuple[slice, slice],
 ) -> tuple[tuple[int, int], float, str]:
-    """The best cell of one part of the grid: ((row, col) in the whole grid, z, how)."""
-    h = whole[part]
-    ground, free = whole_ground[part], whole_free[part]
+    """The best cell of one part of the grid: ((row, col) in the whole grid, z, how).
+
+    Band by band of rows (each read with ``half`` rows more each side, within the part: the
+    filters' windows are cut at the part's edges as they would be on the part whole)."""
+    p0, p1 = part[0].start, part[0].stop
+    cols = part[1].stop - part[1].start
     size = 2 * half + 1
-    top = square_filter(h, half, np.maximum)
-    relief = top - square_filter(h, half, np.minimum)
-    # Room: the footprint lies on the grid (cells nearer the border than ``half`` do not).
-    inside = np.zeros(h.shape, dtype=bool)
-    if h.shape[0] > 2 * half and h.shape[1] > 2 * half:
-        inside[half:-half, half:-half] = True
-    level = inside & (relief <= max(LEVEL_RISE, LEVEL_SLOPE * size * r))
-    r0, c0 = part[0].start, part[1].start
-    rr, cc = np.indices(h.shape)
-    dist2 = (rr + r0 - row) ** 2 + (cc + c0 - col) ** 2
+    limit = max(LEVEL_RISE, LEVEL_SLOPE * size * r)
+    roomy = p1 - p0 > 2 * half and cols > 2 * half
+    col_d2 = (np.arange(part[1].start, part[1].stop, dtype=np.int64) - col) ** 2
+    tiers = {how: _Nearest() for how in _RANK}
+    band = max(1, BAND_CELLS // max(cols, 1), 4 * half)  # halos: at most half again
+    first_top = 0.0
+    for o0 in range(p0, p1, band):
+        o1 = min(p1, o0 + band)
+        a, b = max(p0, o0 - half), min(p1, o1 + half)
+        h, ground, free = field.layers(slice(a, b), part[1])
+        keep = slice(o0 - a, o1 - a)
+        top = square_filter(h, half, np.maximum)[keep]
+        relief = top - square_filter(h, half, np.minimum)[keep]
+        if o0 == p0:
+            first_top = float(top[0, 0])
+        # Room: the footprint lies on the part (cells nearer its border than ``half`` do not).
+        inside = np.zeros(top.shape, dtype=bool)
+        if roomy:
+            inside[max(p0 + half, o0) - o0 : max(min(p1 - half, o1) - o0, 0), half:-half] = True
+        level = inside & (relief <= limit)
+        dist2 = (np.arange(o0, o1, dtype=np.int64) - row)[:, None] ** 2 + col_d2
+        on_ground = _room(ground, half)[keep]
+        first = (o0 - p0) * cols
+        tiers["free"].offer(level & _room(free, half)[keep], None, dist2, top, first)
+        tiers["level"].offer(level & on_ground, None, dist2, top, first)
+        tiers["flattest"].offer(inside & on_ground, relief, dist2, top, first)
+        tiers["walled"].offer(inside, relief, dist2, top, first)
+        tiers["small"].offer(np.ones(top.shape, dtype=bool), relief, dist2, top, first)
+    for how, tier in tiers.items():  # in _RANK's order
+        if not tier.found:
+            continue
+        if tier.nan:  # nothing equals a NaN minimum: argmin of all-equal picks the first cell
+            return (p0, part[1].start), first_top, how
+        assert tier.best is not None
+        pr, pc = divmod(tier.best[2], cols)
+        return (pr + p0, pc + part[1].start), tier.best[3], how
+    raise AssertionError("the part is not empty")  # pragma: no cover (every cell is "small")
 
-    def room(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        under: NDArray[np.bool_] = square_filter(cells.view(np.uint8), half, np.minimum) > 0
-        return under
 
-    on_ground = room(ground)
-    choices = [("free", level & room(free)), ("level", level & on_ground)]
-    for how, ok in choices:
-        if ok.any():
-            flat = np.where(ok, dist2, np.iinfo(np.int64).max)
-            i = int(np.argmin(flat))
-            pr, pc = divmod(i, h.shape[1])
-            return (pr + r0, pc + c0), float(top[pr, pc]), how
-    candidates, how = inside & on_ground, "flattest"
-    if not candidates.any():
-        candidates, how = (inside, "walled") if inside.any() else (np.ones(h.shape, bool), "small")
-    # Nothing level: the flattest spot, nearest among equals.
-    key = np.where(candidates, relief, np.inf)
-    best = key == key.min()
-    i = int(np.argmin(np.where(best, dist2, np.iinfo(np.int64).max)))
-    pr, pc = divmod(i, h.shape[1])
-    return (pr + r0, pc + c0), float(top[pr, pc]), how
+def _room(cells: NDArray[np.bool_], half: int) -> NDArray[np.bool_]:
+    """Cells whose square of half-side ``half`` holds only ``cells``."""
+    under: NDArray[np.bool_] = square_filter(cells.view(np.uint8), half, np.minimum) > 0
+    return under
 
 
 def ground_under(
-    samples: NDArray[np.generic],
+    samples: NDArray[np.generic] | _Field,
     row: float,
     col: float,
     half: float,
