@@ -20,6 +20,7 @@ ring and heading arrow drawn over everything, so that it is found at a glance.
 from __future__ import annotations
 
 import io
+import itertools
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -40,11 +41,14 @@ SKY = (236, 240, 245)
 SPAWN_RGB = (220, 40, 40)
 #: The robot box at the spawn pose: length, width, height in metres.
 ROBOT_BOX = (0.5, 0.4, 0.3)
-#: Triangles gathered and drawn per pass (a 4097 x 4097 heightmap is 33.5 M).
-_FACES = 1_000_000
+#: Triangles gathered and drawn per pass (a 4097 x 4097 heightmap is 33.5 M): a pass holds some
+#: 30 numbers a triangle, so 64 k of them take ~16 MB (1 M took 240 MB, a world folder's peak).
+_FACES = 1 << 16
 #: (triangle, pixel row) pairs handled per pass: bounds the memory of a pass to a few hundred MB
 #: (a pair's span is at most a picture's width).
 _PAIRS = 50_000
+#: Pixels filled per pass (~50 bytes each while they are drawn: 13 MB).
+_PIXELS = 1 << 18
 #: Height colour ramp: (fraction of the z range, RGB): the ground's top grey-green, the highest
 #: tops (walls, peaks) terracotta.
 _RAMP = np.array(
@@ -301,6 +305,15 @@ class _Canvas:
         ``lit + step * band`` (``entry`` = lit, step)."""
         lo, hi = span
         counts = np.maximum(hi - lo + 1, 0)
+        ends = np.cumsum(counts)
+        if len(ends) and ends[-1] > _PIXELS:  # pairs in runs of at most _PIXELS pixels, in order
+            cuts = np.searchsorted(ends, np.arange(_PIXELS, int(ends[-1]), _PIXELS), "right")
+            bounds = [0, *np.unique(np.maximum(cuts, 1)).tolist(), len(lo)]
+            for a, b in itertools.pairwise(bounds):
+                if b > a:
+                    self._fill(row_start[a:b], (lo[a:b], hi[a:b]), base[a:b], dx[a:b],
+                               (entry[0][a:b], entry[1][a:b]))  # fmt: skip
+            return
         pair = np.repeat(np.arange(len(lo)), counts)
         col = np.arange(len(pair)) - np.repeat(np.cumsum(counts) - counts - lo, counts)
         depth_0, depth_dx = np.ascontiguousarray(base[:, 0]), np.ascontiguousarray(dx[:, 0])

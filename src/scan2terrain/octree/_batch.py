@@ -21,8 +21,6 @@ scan, its phase, the ray) says where to go on once tree.py has grown the arrays.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from scan2terrain._numba import numba as nb
@@ -30,17 +28,17 @@ from scan2terrain.octree._raycast import dda_step, ray_start, scan_rays, update_
 from scan2terrain.octree._table import (
     DONE,
     JIT,
-    N_BLOCKS,
     N_TOUCHED,
     STAMP,
     _room,
     _slot,
     block_id,
     coord_to_key,
+    stored,
 )
 
-#: state[]: the scan being inserted, its phase, the next hit or ray, its first new block.
-SCAN, PHASE, NEXT, FIRST_NEW = 0, 1, 2, 3
+#: state[]: the scan being inserted, its phase, the next hit or ray.
+SCAN, PHASE, NEXT = 0, 1, 2
 #: Phases of a scan: hits marked, rays cast, updates applied.
 HITS, RAYS = 1, 2
 #: Entries of the block cache (a power of two; 4 int64 each: 32 KB, L1's size).
@@ -134,15 +132,13 @@ def _update_all(values, cs, w, hit_word, any_word, model):
     full of marks, as a planar scan's free space leaves them: one z layer of a block is one
     word): a voxel without a mark keeps its value, bit for bit."""
     lo_hit, lo_miss, cmin, cmax = model[0], model[1], model[2], model[3]
-    base = w * 64
     for i in range(64):
         mark = (any_word >> np.uint64(i)) & np.uint64(1)
         hit = (hit_word >> np.uint64(i)) & np.uint64(1)
-        old = values[cs, base + i]
-        v = np.float32(0.0) if math.isnan(old) else old
-        v = np.float32(v + (lo_hit if hit else lo_miss))
+        old = values[w, cs, i]  # unknown is +0.0: log-odds 0, where a new node starts
+        v = np.float32(old + (lo_hit if hit else lo_miss))
         v = cmin if v < cmin else (cmax if v > cmax else v)
-        values[cs, base + i] = v if mark else old
+        values[w, cs, i] = stored(v) if mark else old
 
 
 #: From this many marks in a word, all 64 voxels are computed without branches.
@@ -199,9 +195,8 @@ def insert_batch(
         pts = points[offsets[s] : offsets[s + 1]]
         origin = origins[s]
         ends, kind, rays = scan_rays(pts, origin, max_ranges[s], resolution)
-        if state[PHASE] == 0:  # a new scan: its stamp, its counts, where its new blocks start
+        if state[PHASE] == 0:  # a new scan: its stamp, its counts
             counts[STAMP] += 1
-            state[FIRST_NEW] = counts[N_BLOCKS]
             stats[0] += rays[0]
             stats[1] += rays[1]
             stats[2] += rays[2]
@@ -218,10 +213,6 @@ def insert_batch(
         state[NEXT] = at
         if status != DONE:
             return status
-        # Blocks new in this scan start unknown, then the scan's updates.
-        for cs in range(state[FIRST_NEW], counts[N_BLOCKS]):
-            for v in range(values.shape[1]):
-                values[cs, v] = math.nan
         _apply(values, bits, touched, counts[N_TOUCHED], model, stats)
         counts[N_TOUCHED] = 0
         state[SCAN] = s + 1

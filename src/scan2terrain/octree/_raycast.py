@@ -30,6 +30,7 @@ from scan2terrain.octree._table import (
     _slot,
     block_id,
     coord_to_key,
+    stored,
 )
 
 
@@ -478,17 +479,16 @@ def update_word(values, cs, w, hit_word, any_word, model):
     while rest:  # each set bit, lowest first: cost follows the marks, not 64 per word
         bit = rest & (~rest + np.uint64(1))
         rest ^= bit
-        local = w * 64 + DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
-        v = values[cs, local]
-        if math.isnan(v):
-            v = np.float32(0.0)  # a new OcTreeNode starts at log-odds 0
+        i = DEBRUIJN[(bit * DEBRUIJN_MUL) >> np.uint64(58)]
+        # Unknown is +0.0 (_table.known): a new OcTreeNode starts at log-odds 0 anyway.
+        v = values[w, cs, i]
         if hit_word & bit:
             v = np.float32(v + lo_hit)
             hits += 1
         else:
             v = np.float32(v + lo_miss)
             misses += 1
-        values[cs, local] = cmin if v < cmin else (cmax if v > cmax else v)
+        values[w, cs, i] = stored(cmin if v < cmin else (cmax if v > cmax else v))
     return hits, misses
 
 

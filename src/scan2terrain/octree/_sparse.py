@@ -28,6 +28,8 @@ to the dense store, and the queries by voxel key, which read both stores (``look
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from scan2terrain._numba import numba as nb
@@ -36,6 +38,8 @@ from scan2terrain.octree._table import (
     KEY_LIMIT,
     block_id,
     block_voxel_key,
+    loaded,
+    stored,
     table_find,
     table_insert,
     voxel_key,
@@ -124,8 +128,8 @@ def sparse_rehash(table, kmask, out):
 
 @nb.njit(**JIT)
 def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
-    """Move the sparse store's voxels of block (bx, by, bz) into dense block ``cs`` (values
-    already NaN), if it has any."""
+    """Move the sparse store's voxels of block (bx, by, bz) into dense block ``cs`` (new:
+    every voxel unknown), if it has any."""
     bk = block_id(bx, by, bz)
     r = _region(bk)
     at = _probe(st, bk, BLOCK_MASK, r)
@@ -141,14 +145,14 @@ def _adopt_block(cs, bx, by, bz, values, vt, st, sparse_counts, lut):
         at = _probe(vt, block_voxel_key(bk, local), KEY_MASK, r)
         e = vt[at]
         if e != 0:
-            values[cs, local] = lut[e >> HITS_SHIFT]
+            values[local >> 6, cs, local & 63] = lut[e >> HITS_SHIFT]  # > 0: no -0.0 needed
             _remove(vt, at, KEY_MASK)
             left -= 1
 
 
 @nb.njit(**JIT)
 def adopt_sparse(slots, values, block_xyz, vt, st, sparse_counts, lut):
-    """Dense blocks ``slots`` (values already NaN) take over their voxels from the sparse store."""
+    """New dense blocks ``slots`` take over their voxels from the sparse store."""
     for j in range(slots.shape[0]):
         cs = slots[j]
         bx, by, bz = block_xyz[cs, 0], block_xyz[cs, 1], block_xyz[cs, 2]
@@ -212,7 +216,7 @@ def lookup(keys, values, table_keys, table_slots, vt, lut):
         bk = block_id(kx >> 3, ky >> 3, kz >> 3)
         slot = table_find(table_keys, table_slots, bk)
         if slot >= 0:
-            out[i] = values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)]
+            out[i] = loaded(values[kz & 7, slot, (kx & 7) | ((ky & 7) << 3)])
         else:
             e = vt[_probe(vt, voxel_key(kx, ky, kz), KEY_MASK, _region(bk))]
             if e != 0:
@@ -238,6 +242,6 @@ def set_values(
             block_xyz[slot, 1] = by
             block_xyz[slot, 2] = bz
             table_insert(table_keys, table_slots, k, slot)
-            values[slot, :] = np.nan
             _adopt_block(slot, bx, by, bz, values, vt, st, sparse_counts, lut)
-        values[slot, (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)] = logodds[i]
+        v = logodds[i]  # NaN: unknown, +0.0 in the store
+        values[kz & 7, slot, (kx & 7) | ((ky & 7) << 3)] = 0.0 if math.isnan(v) else stored(v)

@@ -1,11 +1,13 @@
 """What the octree's kernels (numba) share: the dense store's block hash table and voxel keys.
 
 Storage (see tree.py): voxels live in dense blocks of 8 x 8 x 8 found through an open-addressing
-hash of block coordinates (``block_id`` -> slot). Per block: ``values`` float32 log-odds (NaN =
-unknown) and ``bits``, uint64 words, one bit per voxel: this scan's hits (words 0-7) and, per
-thread, its misses (words 8 + 8t .. 15 + 8t), so the marks of a whole scan stay in cache and
-threads never share a word. The insertion kernels allocate blocks (``_slot``) while ``_room``
-says they fit, else stop with a NEED_* status: tree.py grows the arrays and resumes them.
+hash of block coordinates (``block_id`` -> slot). Per block: ``values[w, slot, i]`` float32
+log-odds of voxel w * 64 + i (layer w = z; +0.0 = unknown, a log-odds of 0 stored as -0.0: see
+``known``, ``stored``, ``loaded``) and ``bits``, uint64 words, one bit per voxel: this scan's hits
+(words 0-7) and, per thread, its misses (words 8 + 8t .. 15 + 8t), so the marks of a whole scan
+stay in cache and threads never share a word. The insertion kernels allocate blocks (``_slot``)
+while ``_room`` says they fit, else stop with a NEED_* status: tree.py grows the arrays and resumes
+them.
 
 Also here: OctoMap's coordinate -> key, the voxel keys (``voxel_key``, ``key_block``,
 ``key_local``), the numba options of every kernel and the threading layer. numba's cache sees
@@ -153,27 +155,50 @@ def block_voxel_key(bk, local):
     return voxel_key(kx, ky, kz)
 
 
+@nb.njit(inline="always", **JIT)
+def known(v):
+    """Whether a stored value is a known voxel's: +0.0 (all bits zero, as np.zeros leaves
+    memory) is unknown; a log-odds of 0 is stored as -0.0 (``stored``)."""
+    return v != 0 or math.copysign(1.0, v) < 0
+
+
+@nb.njit(inline="always", **JIT)
+def stored(v):
+    """A log-odds as the dense store holds it (0 as -0.0: +0.0 means unknown)."""
+    return np.float32(-0.0) if v == 0 else v
+
+
+@nb.njit(inline="always", **JIT)
+def loaded(v):
+    """A stored value as a log-odds: NaN if unknown, 0 as +0.0."""
+    if v == 0:
+        return np.float32(0.0) if math.copysign(1.0, v) < 0 else np.float32(np.nan)
+    return v
+
+
 @nb.njit(**JIT)
 def dense_voxels(values, block_xyz, n_blocks):
-    """The dense store's known voxels (value not NaN): keys uint16 (M, 3) and log-odds float32
-    (M,), block by block, each block's in local order (x fastest, then y, z). Two passes (count,
-    then fill): no mask, index or int64 key temporaries over every voxel of every block."""
+    """The dense store's known voxels: keys uint16 (M, 3) and log-odds float32 (M,), block by
+    block, each block's in local order (x fastest, then y, z). Two passes (count, then fill): no
+    mask, index or int64 key temporaries over every voxel of every block."""
     m = 0
     for b in range(n_blocks):
-        for local in range(512):
-            if not math.isnan(values[b, local]):
-                m += 1
+        for w in range(8):
+            for i in range(64):
+                m += known(values[w, b, i])
     keys = np.empty((m, 3), dtype=np.uint16)
     lo = np.empty(m, dtype=np.float32)
     j = 0
     for b in range(n_blocks):
         x0, y0, z0 = block_xyz[b, 0] * 8, block_xyz[b, 1] * 8, block_xyz[b, 2] * 8
-        for local in range(512):
-            v = values[b, local]
-            if not math.isnan(v):
-                keys[j, 0] = x0 + (local & 7)
-                keys[j, 1] = y0 + ((local >> 3) & 7)
-                keys[j, 2] = z0 + (local >> 6)
-                lo[j] = v
-                j += 1
+        for w in range(8):
+            for i in range(64):
+                v = values[w, b, i]
+                if known(v):
+                    local = w * 64 + i
+                    keys[j, 0] = x0 + (local & 7)
+                    keys[j, 1] = y0 + ((local >> 3) & 7)
+                    keys[j, 2] = z0 + (local >> 6)
+                    lo[j] = loaded(v)
+                    j += 1
     return keys, lo

@@ -1,12 +1,14 @@
 """A sparse voxel octree with OctoMap's probabilistic model.
 
-Voxels are keyed like OctoMap's depth-16 leaves (16 bits per axis, ``key = floor(x / res) + 32768``)
-and stored in dense 8 x 8 x 8 blocks behind a hash of block coordinates: a leaf is a float32
-log-odds, NaN when unknown. End points only (``insert_endpoints``) keep blocks with few voxels in
-a sparse store instead, a voxel-level hash (see _sparse.py); every query reads both. Inner nodes
-are not stored; a coarser depth is computed on demand as the maximum of its known voxels, which is
-what OctoMap's inner nodes hold. OctoMap's pruning is lossless (it merges 8 equal children), so
-the voxel values here equal OctoMap's leaf values.
+Voxels are keyed like OctoMap's depth-16 leaves (16 bits per axis, ``key = floor(x / res) +
+32768``) and stored in dense 8 x 8 x 8 blocks behind a hash of block coordinates: a leaf is a
+float32 log-odds (queries give NaN when unknown). The blocks' values are stored layer by layer (8 x
+8 voxels at one z), unknown as zeroed memory, so a layer no voxel was written to takes no memory: a
+planar laser's voxels fill one layer of a block's eight. End points only (``insert_endpoints``)
+keep blocks with few voxels in a sparse store instead, a voxel-level hash (see _sparse.py); every
+query reads both. Inner nodes are not stored; a coarser depth is computed on demand as the maximum
+of its known voxels, which is what OctoMap's inner nodes hold. OctoMap's pruning is lossless (it
+merges 8 equal children), so the voxel values here equal OctoMap's leaf values.
 """
 
 from __future__ import annotations
@@ -112,7 +114,11 @@ class VoxelOctree:
         self._occ = logodds(m.occupancy)
         self._model = np.array([self._hit, self._miss, self._cmin, self._cmax], dtype=np.float32)
         # Storage starts small and doubles; see _grow.
-        self._values = np.empty((1024, 512), dtype=np.float32)
+        # Log-odds by layer: values[w, block, i] is voxel w * 64 + i of the block (z = w, i = y *
+        # 8 + x), +0.0 = unknown (a log-odds of 0 is stored as -0.0, _table.stored). Zeroed
+        # memory is mapped lazily: a layer no voxel is written to costs no memory, and a planar
+        # laser's voxels (one z) fill one layer of 8.
+        self._values = np.zeros((8, 1024, 64), dtype=np.float32)
         # Hit words, then one plane of miss words per thread numba may run.
         threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         self._bits = np.zeros((1024, 8 * (1 + threads)), dtype=np.uint64)
@@ -443,7 +449,8 @@ class VoxelOctree:
         return out
 
     def _adopt(self, slots: NDArray[np.int64]) -> None:
-        """New dense blocks ``slots`` (values NaN) take over their voxels from the sparse store."""
+        """New dense blocks ``slots`` (every voxel unknown) take over their voxels from the sparse
+        store."""
         if len(slots) and self._sparse_counts[:, 0].any():
             _sparse.adopt_sparse(
                 slots,
@@ -481,8 +488,8 @@ class VoxelOctree:
             self._grow(status)
 
     def _fresh_blocks(self, first: int) -> None:
-        """Blocks allocated since ``first`` start with every voxel unknown (NaN)."""
-        self._values[first : self.n_blocks] = np.nan
+        """Blocks allocated since ``first`` start with every voxel unknown: zeroed memory
+        (blocks are never freed, so their rows were never written)."""
 
     @staticmethod
     def _kernels(rays: int) -> K.Kernels:
@@ -537,16 +544,12 @@ class VoxelOctree:
         if status == _table.NEED_BLOCKS or n_blocks + wanted > len(self._bits):
             new = max(2 * len(self._bits), n_blocks + 4096, n_blocks + wanted)
             self._check_budget(new)
-            # Fresh arrays, only the used rows copied: the tail stays untouched virtual memory
-            # (np.empty / np.zeros map pages lazily). A block's values are set to NaN when it is
-            # allocated (_fresh_blocks, set_values), its bits are zero from np.zeros.
-            for name, make in (
-                ("_values", np.empty),
-                ("_bits", np.zeros),
-                ("_block_xyz", np.zeros),
-            ):
+            # Fresh zeroed arrays (np.zeros maps pages lazily), only the used rows copied: the
+            # tail stays untouched virtual memory, and so do the layers no voxel was written to.
+            self._values = _copy_written(self._values, n_blocks, new)
+            for name in ("_bits", "_block_xyz"):
                 a = getattr(self, name)
-                b = make((new, *a.shape[1:]), dtype=a.dtype)
+                b = np.zeros((new, *a.shape[1:]), dtype=a.dtype)
                 b[:n_blocks] = a[:n_blocks]
                 setattr(self, name, b)
             # -1: touched by no scan yet, whichever path allocates the block (8 bytes a block).
@@ -570,7 +573,7 @@ class VoxelOctree:
         if self.max_bytes is None:
             return
         per_block = (self._values, self._bits, self._block_xyz, self._stamp)
-        row = sum(a.nbytes // len(a) for a in per_block)
+        row = sum(a.nbytes // len(self._bits) for a in per_block)
         need = self.memory_bytes() - sum(a.nbytes for a in per_block) + blocks * row
         if need > self.max_bytes:
             raise InputError(
@@ -606,7 +609,7 @@ class VoxelOctree:
 
     def __len__(self) -> int:
         """Number of known voxels."""
-        dense = np.count_nonzero(~np.isnan(self._values[: self.n_blocks]))
+        dense = np.count_nonzero(self._values[:, : self.n_blocks].view(np.uint32))  # not +0.0
         return int(dense) + self.n_sparse
 
     @property
@@ -714,6 +717,21 @@ class VoxelOctree:
             self._sparse_counts,
             self._lut,
         )
+
+
+def _copy_written(values: NDArray[np.float32], n: int, size: int) -> NDArray[np.float32]:
+    """``values`` (layers, blocks, 64) in a zeroed array of ``size`` blocks: of its first ``n``
+    blocks, only the layer rows holding a nonzero bit are copied, so a layer never written
+    stays untouched memory (reading it maps no page of its own)."""
+    out = np.zeros((values.shape[0], size, values.shape[2]), dtype=values.dtype)
+    for w in range(values.shape[0]):
+        written = values[w, :n].view(np.uint32).any(axis=1)
+        if written.all():
+            out[w, :n] = values[w, :n]
+        elif written.any():
+            rows = np.flatnonzero(written)
+            out[w, rows] = values[w, rows]
+    return out
 
 
 #: Zeroed memory for the box bits, kept for the next scan of any tree of the process: touching
