@@ -23,7 +23,19 @@ import sys
 # unless the user chose a policy; child processes (Dask workers) inherit it.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numba
+# numba imports coverage.py, where it is installed, to report the lines it compiles to a
+# coverage run in progress: 40 ms of every process that runs a kernel (a third of numba's own
+# import). A run in progress has imported coverage already (coverage run, pytest-cov) and is
+# left as it is; otherwise numba is imported with coverage unimportable for the moment.
+_COVERAGE = "coverage"
+_hidden = _COVERAGE not in sys.modules
+if _hidden:
+    sys.modules[_COVERAGE] = None  # type: ignore[assignment]  # `import coverage` fails now
+try:
+    import numba
+finally:
+    if _hidden and sys.modules.get(_COVERAGE, _COVERAGE) is None:
+        del sys.modules[_COVERAGE]
 
 # numba tries TBB first; Open3D's wheel ships an older libtbb, and once Open3D is loaded numba
 # finds that one, warns and falls back. OpenMP (then numba's own work queue) unless the user

@@ -224,6 +224,8 @@ def _warm_grids() -> None:
         tiles.add_points(rng.uniform(-5, 5, (10_000, 3)))
         tiles.merge(TileSet(lattice))
         tiles.column_stats()
+    # The streamed path's binning on two threads (a chunk of 2^17 points a thread at least).
+    TileSet(Lattice(0.1, 64), threads=2).add_points(rng.uniform(-5, 5, (1 << 18, 3)))
     walls = np.zeros((12, 12), bool)
     walls[2:10, 3] = walls[5, 2:11] = True
     simplify(trace(walls, 0.05, Pose2D(0.0, 0.0)), 0.05, resolution=0.05, origin=Pose2D(0.0, 0.0))

@@ -369,8 +369,9 @@ def run(
     if cfg.stream.distributed:
         return _run_dask(chunks, job, cfg, progress)
     # Straight into the result (the same sums, no merge), reading ahead across chunks: a file
-    # of one chunk is read while the previous one is rasterized.
-    total = TileSet(job.lattice)
+    # of one chunk is read while the previous one is rasterized, on numba's threads (the same
+    # records on any number).
+    total = TileSet(job.lattice, threads=numba_threads())
     recorder = _recorder(job)
     for i, points in _read_ahead(_numbered_points(chunks, job, recorder)):
         if points is None:  # chunk i is done
@@ -379,6 +380,15 @@ def run(
             continue
         total.add_points(points)
     return total, recorder
+
+
+def numba_threads() -> int:
+    """The threads numba may run (``NUMBA_NUM_THREADS``, every core by default), read without
+    starting its threading layer."""
+    from scan2terrain._numba import numba
+
+    threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    return threads
 
 
 def _numbered_points(

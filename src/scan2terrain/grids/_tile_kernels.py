@@ -81,8 +81,6 @@ def accumulate(points, inv_res, band, shift, sum_scale, tr0, tc0, slots, cells, 
     not depend on the order: the records are the same."""
     mask = (np.int64(1) << shift) - 1
     t2 = np.int64(1) << (2 * shift)
-    flat = cells.reshape(-1, 3)
-    flat32 = cells32.reshape(-1, 6)
     n_slots = cells.shape[0]
     key = np.empty(_BUCKET, dtype=np.int64)
     zs = np.empty(_BUCKET, dtype=np.float64)
@@ -113,18 +111,70 @@ def accumulate(points, inv_res, band, shift, sum_scale, tr0, tc0, slots, cells, 
             starts[s] = at + 1
             by_tile[at] = key[j]
             z_by_tile[at] = zs[j]
-        for j in range(m):
-            k = by_tile[j]
-            z = z_by_tile[j]
-            z32 = np.float32(z)
-            count = flat[k, 0]
-            if count == 0:
+        add_sorted(by_tile[:m], z_by_tile[:m], sum_scale, cells, cells32)
+
+
+@nb.njit(**_JIT)
+def add_sorted(keys, zs, sum_scale, cells, cells32):
+    """Add point ``j`` (z ``zs[j]``) to the cell record ``keys[j]`` (flat index of the record in
+    ``cells``), as :func:`accumulate` describes; best with the keys grouped by tile."""
+    flat = cells.reshape(-1, 3)
+    flat32 = cells32.reshape(-1, 6)
+    for j in range(keys.shape[0]):
+        k = keys[j]
+        z = zs[j]
+        z32 = np.float32(z)
+        count = flat[k, 0]
+        if count == 0:
+            flat32[k, 4] = z32
+            flat32[k, 5] = z32
+        else:
+            if z32 < flat32[k, 4]:
                 flat32[k, 4] = z32
+            if z32 > flat32[k, 5]:
                 flat32[k, 5] = z32
-            else:
-                if z32 < flat32[k, 4]:
-                    flat32[k, 4] = z32
-                if z32 > flat32[k, 5]:
-                    flat32[k, 5] = z32
-            flat[k, 0] = count + 1
-            flat[k, 1] += np.int64(math.floor(z * sum_scale + 0.5))
+        flat[k, 0] = count + 1
+        flat[k, 1] += np.int64(math.floor(z * sum_scale + 0.5))
+
+
+# The same sums on several threads (TileSet's ``threads``): each thread counts, then places, the
+# usable points of its own range of points by bucket (a band of ``2^band_shift`` rows of a
+# tile; ``local[tr - tr0, tc - tc0]`` is the chunk's own number of the point's tile), into one
+# array sorted by bucket; then each adds whole buckets, so no two threads touch one cell. Sums,
+# minima and maxima do not depend on the order: the records are those of :func:`accumulate`.
+
+
+@nb.njit(**_JIT)
+def bucket_counts(points, inv_res, band, shift, band_shift, n_bands, tr0, tc0, local, counts):
+    """counts[bucket] += 1 for every usable point (buckets as above)."""
+    mask = (np.int64(1) << shift) - 1
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if not _usable(x, y, z, band):
+            continue
+        row = np.int64(_cell(y, inv_res))
+        col = np.int64(_cell(x, inv_res))
+        t = local[(row >> shift) - tr0, (col >> shift) - tc0]
+        counts[t * n_bands + ((row & mask) >> band_shift)] += 1
+
+
+@nb.njit(**_JIT)
+def place(
+    points, inv_res, band, shift, band_shift, n_bands, tr0, tc0, local, slot_of, at, keys, zs
+):
+    """Every usable point's record index (``slot_of[local tile] * tile^2 + cell``) and z into
+    ``keys``/``zs`` at ``at[bucket]`` (then advanced): the points sorted by bucket."""
+    mask = (np.int64(1) << shift) - 1
+    t2 = np.int64(1) << (2 * shift)
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if not _usable(x, y, z, band):
+            continue
+        row = np.int64(_cell(y, inv_res))
+        col = np.int64(_cell(x, inv_res))
+        t = local[(row >> shift) - tr0, (col >> shift) - tc0]
+        b = t * n_bands + ((row & mask) >> band_shift)
+        j = at[b]
+        at[b] = j + 1
+        keys[j] = slot_of[t] * t2 + (((row & mask) << shift) | (col & mask))
+        zs[j] = z

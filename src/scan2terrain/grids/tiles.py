@@ -20,8 +20,10 @@ centre of the point's z voxel, as the octree's projection does. The mean is exac
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +33,13 @@ from numpy.typing import NDArray
 from scan2terrain.grids.projection import STATS, ColumnStats
 from scan2terrain.octree.keys import coord_cell
 from scan2terrain.types import OCCUPIED, UNKNOWN, HeightGrid, OccupancyGrid, Pose2D
+
+#: Points per thread at least before :meth:`TileSet.add_points` uses another thread.
+_PER_THREAD = 1 << 17
+#: Points binned on threads at a time (their sorted record indices and z: 32 MB at most).
+_PIECE = 1 << 21
+#: Buckets of the threaded binning are bands of a tile: 2^_BAND_BITS a tile (32 rows of 256).
+_BAND_BITS = 3
 
 #: Heights are summed as integers in units of 1/SUM_SCALE m (2^-14 m, 0.06 mm): integer sums
 #: are associative, float sums are not. int64 holds 5.6e14 m of summed height per cell.
@@ -135,10 +144,16 @@ class TileSet:
     read them; :attr:`count` is the counts; min/max meaningful where count > 0). ``index``
     maps a tile ``(tile_row, tile_col)`` to its row. Rows beyond ``len(index)`` are spare
     capacity: zeroed virtual memory that costs nothing until written.
+
+    ``threads``: a chunk of ``2^18`` points or more is binned on that many threads (the
+    streamed path's single process); the records, and the order of the tiles, are those one
+    thread gives.
     """
 
-    def __init__(self, lattice: Lattice) -> None:
+    def __init__(self, lattice: Lattice, threads: int = 1) -> None:
         self.lattice = lattice
+        #: Threads :meth:`add_points` bins a large chunk on (the records do not depend on it).
+        self.threads = max(1, int(threads))
         self.index: dict[tuple[int, int], int] = {}
         self.cells: NDArray[np.int64] = np.zeros((0, lattice.tile**2, 3), dtype=np.int64)
 
@@ -182,19 +197,15 @@ class TileSet:
         lat = self.lattice
         inv = 1.0 / lat.resolution
         band = lat.z_limits()
+        threads = min(self.threads, len(pts) // _PER_THREAD)
+        if threads > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                return self._add_threaded(pts, inv, band, pool, threads)
         x0, y0, x1, y1, n = K.extent(pts, band)
         if n == 0:
             return 0
         shift = lat.tile.bit_length() - 1
-        # A point's cell is monotonic in its coordinate: the extreme points hold the extreme tiles.
-        tr0, tr1 = (coord_cell(v, inv) >> shift for v in (y0, y1))
-        tc0, tc1 = (coord_cell(v, inv) >> shift for v in (x0, x1))
-        # A table over the chunk's tile extent: 8 bytes per tile, while the grid those tiles
-        # would become is >= 17 bytes per *cell*, so the table never dominates.
-        flags = np.ones((tr1 - tr0 + 1, tc1 - tc0 + 1), dtype=np.uint8)
-        if flags.size > 1:
-            flags[:] = 0
-            K.flag_tiles(pts, inv, band, shift, tr0, tc0, flags)
+        tr0, tc0, flags = self._flags((x0, y0, x1, y1), [pts], None)
         slots = np.full(flags.shape, -1, dtype=np.int64)
         for r, c in zip(*np.nonzero(flags), strict=True):
             slots[r, c] = self._slot((int(r) + tr0, int(c) + tc0))
@@ -204,6 +215,83 @@ class TileSet:
             cells, cells.view(np.float32),
         )  # fmt: skip
         return int(n)
+
+    def _flags(
+        self,
+        box: tuple[float, float, float, float],
+        parts: list[NDArray[np.float64]],
+        pool: ThreadPoolExecutor | None,
+    ) -> tuple[int, int, NDArray[np.uint8]]:
+        """(first tile row, first tile column, flags) over the tile extent of ``box`` (x0, y0,
+        x1, y1 of the usable points): 1 where a tile holds a usable point of ``parts`` (the
+        chunk's points, flagged side by side on ``pool`` when given)."""
+        from scan2terrain.grids import _tile_kernels as K
+
+        lat = self.lattice
+        inv = 1.0 / lat.resolution
+        band = lat.z_limits()
+        shift = lat.tile.bit_length() - 1
+        x0, y0, x1, y1 = box
+        # A point's cell is monotonic in its coordinate: the extreme points hold the extreme tiles.
+        tr0, tr1 = (coord_cell(v, inv) >> shift for v in (y0, y1))
+        tc0, tc1 = (coord_cell(v, inv) >> shift for v in (x0, x1))
+        # A table over the chunk's tile extent: 8 bytes per tile, while the grid those tiles
+        # would become is >= 17 bytes per *cell*, so the table never dominates.
+        shape = (tr1 - tr0 + 1, tc1 - tc0 + 1)
+        if shape == (1, 1):
+            return tr0, tc0, np.ones(shape, dtype=np.uint8)
+        tables = [np.zeros(shape, dtype=np.uint8) for _ in parts]
+
+        def flag(k: int) -> None:
+            K.flag_tiles(parts[k], inv, band, shift, tr0, tc0, tables[k])
+
+        list(map(flag, range(len(parts))) if pool is None else pool.map(flag, range(len(parts))))
+        return tr0, tc0, np.bitwise_or.reduce(tables)
+
+    def _add_threaded(
+        self,
+        pts: NDArray[np.float64],
+        inv: float,
+        band: tuple[float, float],
+        pool: ThreadPoolExecutor,
+        threads: int,
+    ) -> int:
+        """:meth:`add_points` on ``threads`` threads, with the same records and tiles in the
+        same order: the chunk's tiles get their rows as one thread gives them, then
+        ``_PIECE`` points at a time each thread counts and places its range of the piece by
+        bucket (``_tile_kernels``), and adds whole buckets."""
+        from scan2terrain.grids import _tile_kernels as K
+
+        def ranges(a: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+            edges = [len(a) * k // threads for k in range(threads + 1)]
+            return [a[i:j] for i, j in itertools.pairwise(edges)]
+
+        parts = ranges(pts)
+        ext = list(pool.map(lambda p: K.extent(p, band), parts))
+        n = sum(int(e[4]) for e in ext)
+        if n == 0:
+            return 0
+        box = (
+            min(e[0] for e in ext), min(e[1] for e in ext),
+            max(e[2] for e in ext), max(e[3] for e in ext),
+        )  # fmt: skip
+        tr0, tc0, flags = self._flags(box, parts, pool)
+        rows, cols = np.nonzero(flags)
+        local = np.full(flags.shape, -1, dtype=np.int64)
+        local[rows, cols] = np.arange(len(rows))
+        slot_of = np.array(
+            [self._slot((int(r) + tr0, int(c) + tc0)) for r, c in zip(rows, cols, strict=True)],
+            dtype=np.int64,
+        )
+        cells = self.cells  # after _slot: it may have grown
+        shift = self.lattice.tile.bit_length() - 1
+        band_shift = max(shift - _BAND_BITS, 0)
+        n_bands = 1 << (shift - band_shift)
+        n_buckets = len(rows) * n_bands
+        geometry = (inv, band, shift, band_shift, n_bands, tr0, tc0, local)
+        for s in range(0, len(pts), _PIECE):  # 16 bytes a point of a piece
+            _bin_piece(ranges(pts[s : s + _PIECE]), geometry, slot_of, n_buckets, cells, pool)
+        return n
 
     def _slot(self, key: tuple[int, int]) -> int:
         slot = self.index.get(key)
@@ -408,6 +496,48 @@ class TileSet:
         box = self._known_box()
         data = self._paste(box, _occupancy, np.int8, UNKNOWN)
         return OccupancyGrid(data, self.lattice.resolution, self.origin_of(box))
+
+
+def _bin_piece(
+    parts: list[NDArray[np.float64]],
+    geometry: tuple[Any, ...],
+    slot_of: NDArray[np.int64],
+    n_buckets: int,
+    cells: NDArray[np.int64],
+    pool: ThreadPoolExecutor,
+) -> None:
+    """``parts`` of a piece of points (one a thread) counted, placed by bucket and added
+    (``_tile_kernels``; ``geometry``: the kernels' lattice arguments)."""
+    from scan2terrain.grids import _tile_kernels as K
+
+    threads = len(parts)
+    counts = np.zeros((threads, n_buckets), dtype=np.int64)
+
+    def count(k: int) -> None:
+        K.bucket_counts(parts[k], *geometry, counts[k])
+
+    list(pool.map(count, range(threads)))
+    # Bucket by bucket, thread by thread: where each thread places its points of a bucket.
+    ends = np.cumsum(counts.T.ravel()).reshape(n_buckets, threads)
+    at = np.ascontiguousarray((ends - counts.T).T)
+    m = int(ends[-1, -1])
+    keys = np.empty(m, dtype=np.int64)
+    zs = np.empty(m, dtype=np.float64)
+
+    def put(k: int) -> None:
+        K.place(parts[k], *geometry, slot_of, at[k], keys, zs)
+
+    list(pool.map(put, range(threads)))
+    # Whole buckets to each thread, about m / threads points each.
+    bucket_end = ends[:, -1]
+    cuts = np.searchsorted(bucket_end, [m * k // threads for k in range(1, threads)])
+    bounds = [0, *(int(bucket_end[c]) for c in cuts), m]
+
+    def add(k: int) -> None:
+        a, b = bounds[k], bounds[k + 1]
+        K.add_sorted(keys[a:b], zs[a:b], SUM_SCALE, cells, cells.view(np.float32))
+
+    list(pool.map(add, range(threads)))
 
 
 # Per-tile views of the cell records (count, z sum, float32 min|max): each returns the values of

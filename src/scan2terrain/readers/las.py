@@ -2,17 +2,19 @@
 every other dimension, point format, scales, offsets and records on request) or streamed by
 point range (:func:`iter_las`), and their headers alone (:func:`las_info`); a path or a URL.
 
-laspy (LAZ through its lazrs backend), read chunk by chunk; coordinates are the scaled float64
-``x, y, z`` (UTM eastings ~5e6 m lose centimetres in float32), computed by
-``_las_kernels.py``. Before laspy opens a file its header and (LAZ) chunk table are checked
-against the file's size (``_las_layout.py``), and a Rust panic in lazrs is refused like any
-corrupt file.
+A local uncompressed LAS file with a regular header is read without laspy (``_las_plain.py``:
+the same points); the rest by laspy (LAZ through lazrs, its chunks decoded on every core), read
+chunk by chunk. Coordinates are the scaled float64 ``x, y, z`` (UTM eastings ~5e6 m lose
+centimetres in float32), computed by ``_las_kernels.py``. Before either reads, a file's header
+and (LAZ) chunk table are checked against the file's size (``_las_layout.py``), and a Rust panic
+in lazrs is refused like any corrupt file.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,7 @@ from scan2terrain.fileio import is_url, url_path
 from scan2terrain.readers._cloud_common import Decoded
 from scan2terrain.readers._files import regular_file
 from scan2terrain.readers._las_layout import check_las_layout, is_panic, panic_error
+from scan2terrain.readers._las_plain import PlainLas, plain_header, read_records
 from scan2terrain.readers._limits import MAX_COORDINATE_M, within
 from scan2terrain.types import LasLayout, LasVlr
 
@@ -79,6 +82,9 @@ def read_las(
     layout = None
     with path.open("rb") as raw:
         check_las_layout(raw, path.stat().st_size, path, decode=(0, None))
+        plain = None if colours or attributes else plain_header(raw)
+    if plain is not None:
+        return _read_plain(path, plain, classes)
     try:
         with laspy.open(path) as reader:
             header = reader.header
@@ -155,6 +161,45 @@ def read_las(
     return Decoded(points, colour, fmt, columns, layout, unread_why)
 
 
+def _read_plain(path: Path, las: PlainLas, classes: NDArray[np.int64] | None) -> Decoded:
+    """:func:`read_las`'s points of an uncompressed LAS file with a regular header, without
+    laspy (``_las_plain.py``): the same points, in the same order."""
+    fmt = f"{path.suffix.lower()[1:]} {las.version} point format {las.point_format}"
+    n = las.count
+    points = np.empty((n, 3), dtype=np.float64)
+    wanted = np.zeros(256, dtype=np.bool_)
+    present = np.zeros(256, dtype=np.int64)
+    if classes is not None:
+        wanted[classes] = True
+    seen = kept = 0
+    try:
+        with path.open("rb") as f:
+            for records in read_records(f, las, path, 0, n, LAS_CHUNK):
+                m = len(records)
+                if classes is None:
+                    _scaled(records, las.scales, las.offsets, out=points[kept : kept + m],
+                            where=path, first=seen)  # fmt: skip
+                else:
+                    codes = las.classes(records)
+                    present += np.bincount(codes, minlength=256)
+                    keep = wanted[codes]
+                    m = int(np.count_nonzero(keep))
+                    xyz = _scaled(records, las.scales, las.offsets, where=path, first=seen)
+                    points[kept : kept + m] = xyz[keep]
+                seen += len(records)
+                kept += m
+    except OSError as exc:
+        raise InputError(path, f"cannot read as LAS/LAZ ({exc})") from exc
+    if classes is not None and kept == 0 and seen > 0:
+        raise InputError(
+            path,
+            f"no point of class {', '.join(map(str, classes.tolist()))} "
+            f"(classes present: {', '.join(map(str, np.flatnonzero(present).tolist()))})",
+        )
+    points = points[:kept].copy() if kept < n // 2 else points[:kept]
+    return Decoded(points, None, fmt)
+
+
 #: Records laspy writes itself: LASzip's, and the description of the extra bytes.
 _WRITER_VLRS = {("laszip encoded", 22204), ("LASF_Spec", 4)}
 
@@ -223,27 +268,36 @@ def _las_source(name: Path | str) -> Iterator[Any]:
         raise InputError(url, f"cannot open the URL ({type(exc).__name__}: {exc})") from exc
 
 
+def _read_error(exc: BaseException) -> bool:
+    """An error of reading a file laspy or lazrs could not read (laspy's own errors are only
+    raised once it is imported: a plain LAS file is read without it)."""
+    if isinstance(exc, (ValueError, RuntimeError, EOFError, OSError)):
+        return True
+    laspy = sys.modules.get("laspy")
+    return laspy is not None and isinstance(exc, laspy.errors.LaspyException)
+
+
 def las_info(path: Path | str) -> LasInfo:
     """The header of a LAS/LAZ file (a path, or a URL fsspec can open). Raises InputError for a
     missing, empty, foreign or truncated (uncompressed: shorter than its header's points need)
     file."""
-    import laspy
-
     where: Path | str = path if is_url(path) else Path(path)
     try:
-        with (
-            _las_source(where) as source,
-            _checked(source, where) as variable,
-            laspy.open(source) as reader,
-        ):
-            h = reader.header
-            n = int(h.point_count)
-            version = f"{h.version.major}.{h.version.minor}"
-            fmt = f"{url_suffix(where)[1:]} {version} point format {h.point_format.id}"
-            mins = tuple(float(v) for v in h.mins)
-            maxs = tuple(float(v) for v in h.maxs)
-    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
-        if isinstance(exc, InputError):
+        with _las_source(where) as source, _checked(source, where) as (variable, plain):
+            if plain is not None:
+                fmt = f"{url_suffix(where)[1:]} {plain.version} point format {plain.point_format}"
+                return LasInfo(where, plain.count, plain.mins, plain.maxs, fmt)
+            import laspy
+
+            with laspy.open(source) as reader:
+                h = reader.header
+                n = int(h.point_count)
+                version = f"{h.version.major}.{h.version.minor}"
+                fmt = f"{url_suffix(where)[1:]} {version} point format {h.point_format.id}"
+                mins = tuple(float(v) for v in h.mins)
+                maxs = tuple(float(v) for v in h.maxs)
+    except Exception as exc:
+        if isinstance(exc, InputError) or not _read_error(exc):
             raise
         raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from exc
     except BaseException as exc:
@@ -256,18 +310,21 @@ def las_info(path: Path | str) -> LasInfo:
 @contextlib.contextmanager
 def _checked(
     source: Any, where: Path | str, decode: tuple[int, int | None] | None = None
-) -> Iterator[bool]:
+) -> Iterator[tuple[bool, PlainLas | None]]:
     """:func:`check_las_layout` on a path or a seekable file object (left at its start),
-    giving whether the file is a LAZ of variable-size chunks; an unseekable stream is not
-    checked (the PanicException backstop still applies; False)."""
+    giving whether the file is a LAZ of variable-size chunks and, for a local uncompressed LAS
+    file with a regular header, that header (``_las_plain.py``: read without laspy); an
+    unseekable stream is not checked (the PanicException backstop still applies; False)."""
     variable = False
+    plain = None
     if isinstance(source, Path):
         with source.open("rb") as f:
             variable = check_las_layout(f, source.stat().st_size, where, decode=decode)
+            plain = plain_header(f)
     elif source.seekable():
         variable = check_las_layout(source, _size(source), where, decode=decode)
         source.seek(0)
-    yield variable
+    yield variable, plain
 
 
 def _size(source: Any) -> int:
@@ -293,9 +350,9 @@ def iter_las(
     """Points ``[start, start + count)`` of a LAS/LAZ file (``count`` None: to the end), ``step``
     at a time, as float64 (n, 3) in the file's units (``X * scale + offset``, as laspy computes
     them) less ``origin``, of the requested classes only. Non-finite points are not possible in
-    LAS. Raises InputError naming the file for unreadable or truncated data."""
-    import laspy
-
+    LAS. Raises InputError naming the file for unreadable or truncated data. A local
+    uncompressed file is read without laspy (``_las_plain.py``), LAZ by laspy and lazrs (its
+    chunks decoded on every core)."""
     where: Path | str = path if is_url(path) else Path(path)
     suffix = url_suffix(where)
     classes = None if las_classes is None else class_codes(where, suffix, las_classes)
@@ -305,26 +362,39 @@ def iter_las(
         stop = None if count is None else start + count
         with (
             _las_source(where) as source,
-            _checked(source, where, (start, stop)) as variable,
-            laspy.open(source) as reader,
+            _checked(source, where, (start, stop)) as (variable, plain),
         ):
-            total = int(reader.header.point_count)
-            want = total - start if count is None else min(count, total - start)
-            if start and variable:
-                _read_past(reader, start, step)
-            elif start:
-                reader.seek(start)
-            while seen < want:
-                chunk = reader.read_points(min(step, want - seen))
-                if len(chunk) == 0:
-                    break
-                xyz = _xyz(chunk, origin, where=where, first=start + seen)
-                seen += len(chunk)
-                if classes is not None:
-                    xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
-                yield xyz
-    except (laspy.errors.LaspyException, ValueError, RuntimeError, EOFError, OSError) as exc:
-        if isinstance(exc, InputError):
+            if plain is not None:
+                want = plain.count - start if count is None else min(count, plain.count - start)
+                with Path(source).open("rb") as f:
+                    for records in read_records(f, plain, where, start, start + want, step):
+                        xyz = _scaled(records, plain.scales, plain.offsets, origin,
+                                      where=where, first=start + seen)  # fmt: skip
+                        seen += len(records)
+                        if classes is not None:
+                            xyz = xyz[np.isin(plain.classes(records), classes)]
+                        yield xyz
+            else:
+                import laspy
+
+                with laspy.open(source) as reader:
+                    total = int(reader.header.point_count)
+                    want = total - start if count is None else min(count, total - start)
+                    if start and variable:
+                        _read_past(reader, start, step)
+                    elif start:
+                        reader.seek(start)
+                    while seen < want:
+                        chunk = reader.read_points(min(step, want - seen))
+                        if len(chunk) == 0:
+                            break
+                        xyz = _xyz(chunk, origin, where=where, first=start + seen)
+                        seen += len(chunk)
+                        if classes is not None:
+                            xyz = xyz[np.isin(np.asarray(chunk.classification), classes)]
+                        yield xyz
+    except Exception as exc:
+        if isinstance(exc, InputError) or not _read_error(exc):
             raise
         raise InputError(where, f"cannot read as LAS/LAZ ({exc})") from exc
     except BaseException as exc:  # GeneratorExit at a yield is re-raised as it is
@@ -357,20 +427,37 @@ def _xyz(
     where: Path | str,
     first: int,
 ) -> NDArray[np.float64]:
-    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord, exactly as laspy scales
+    """(n, 3) float64 coordinates of a laspy ScaleAwarePointRecord (:func:`_scaled`)."""
+    arr = points.array
+    return _scaled(
+        arr, np.asarray(points.scales), np.asarray(points.offsets), origin, out,
+        where=where, first=first,
+    )  # fmt: skip
+
+
+def _scaled(
+    records: NDArray[Any],
+    scales: NDArray[np.float64],
+    offsets: NDArray[np.float64],
+    origin: NDArray[np.float64] | None = None,
+    out: NDArray[np.float64] | None = None,
+    *,
+    where: Path | str,
+    first: int,
+) -> NDArray[np.float64]:
+    """(n, 3) float64 coordinates of LAS records (fields X, Y, Z), exactly as laspy scales
     them (``X * scale + offset``), less ``origin`` (metres, default none); into ``out`` (C-
     contiguous (n, 3)) when given. InputError naming ``where`` and the point (``first`` is the
-    index of the record's first point in the file) for a coordinate beyond
+    index of the records' first point in the file) for a coordinate beyond
     MAX_COORDINATE_M."""
     from scan2terrain.readers._las_kernels import scaled_xyz
 
     if out is None:
-        out = np.empty((len(points), 3), dtype=np.float64)
-    arr = points.array
-    scales = np.asarray(points.scales, dtype=np.float64)
-    offsets = np.asarray(points.offsets, dtype=np.float64)
+        out = np.empty((len(records), 3), dtype=np.float64)
+    scales = np.asarray(scales, dtype=np.float64)
+    offsets = np.asarray(offsets, dtype=np.float64)
     shift = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
-    scaled_xyz(arr["X"], arr["Y"], arr["Z"], scales, offsets, shift, out)
+    scaled_xyz(records["X"], records["Y"], records["Z"], scales, offsets, shift, out)
     # Only where the header lets an int32 reach beyond the limit (a scale of 0.5 m or more;
     # _las_layout has checked the offsets) is there a point to look for: usual files pay nothing.
     for axis in np.flatnonzero(np.abs(offsets) + 2.0**31 * scales > MAX_COORDINATE_M):
