@@ -21,6 +21,7 @@ from typing import Any
 # The module, not its names: scan2terrain.api imports this package's modules, and either may
 # be imported first.
 from scan2terrain import api
+from scan2terrain._malloc import give_back_freed_memory
 from scan2terrain.cli.dispatch import COMMAND_DEFAULTS, COMMANDS, Progress, load, show_progress
 from scan2terrain.cli.display import ProgressBar, TaskBar, report
 from scan2terrain.cli.parser import build_parser
@@ -30,6 +31,7 @@ __all__ = ["COMMAND_DEFAULTS", "build_parser", "main", "report"]
 
 
 def main(argv: list[str] | None = None) -> int:
+    give_back_freed_memory()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
