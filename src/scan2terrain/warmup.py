@@ -190,8 +190,9 @@ def _warm_scans() -> None:
     tree.insert_scan(far, np.zeros(3), max_range=-1.0)
     # Many small scans in one call (a laser log's path): bag2world's argument types.
     pts = scan[:720].astype(np.float32)
-    tree.insert_scans(np.concatenate([pts, pts + 0.2]), np.array([0, 720, 1440]),
-                      np.array([[0.0, 0.0, 0.0], [0.2, 0.2, 0.2]]), np.array([-1.0, 3.0]))  # fmt: skip
+    origins = np.array([[0.0, 0.0, 0.0], [0.2, 0.2, 0.2]])
+    offsets = np.array([0, 720, 1440])
+    tree.insert_scans(np.concatenate([pts, pts + 0.2]), offsets, origins, np.array([-1.0, 3.0]))
     keys, occupied = tree.occupied_and_free()
     bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)
     # The dense store's block table grows only past thousands of dense blocks, more than these
