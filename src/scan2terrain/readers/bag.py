@@ -456,18 +456,46 @@ class Bag:
     def _decoded(
         self, conns: list[Connection], start_ns: int | None, end_ns: int | None
     ) -> Iterator[tuple[str, int, object]]:
-        decode = self._reader.decode
         for conn, t_ns, raw in self._raw(conns, start_ns, end_ns):
-            try:
-                msg = decode(conn, raw)
-            except Exception as exc:  # a damaged message: its bytes do not fit the definition
-                raise InputError(
-                    self._owner([conn]),
-                    f"message on {shown(conn.topic)} at {(t_ns - self.start_ns) / 1e9:.3f} s "
-                    f"cannot be decoded as {conn.msgtype} "
-                    f"({one_line(str(exc)) or type(exc).__name__})",
-                ) from exc
-            yield conn.topic, int(t_ns), msg
+            yield conn.topic, int(t_ns), self.decode(conn, t_ns, raw)
+
+    def raw_messages(
+        self,
+        topics: str | Iterable[str],
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[tuple[Connection, int, Any]]:
+        """:meth:`messages` undecoded: ``(connection, bag time ns, raw)`` in the same order, raw
+        as the reader holds it (the message's bytes, or a CARMEN log's record index); give it
+        to :meth:`decode`, or read it as :meth:`wire` says. Errors as :meth:`messages`."""
+        _, conns = self._conns(topics)
+        return self._raw(conns, start_ns, end_ns)
+
+    def decode(self, conn: Connection, t_ns: int, raw: Any) -> object:
+        """One message of :meth:`raw_messages` as :meth:`messages` gives it.
+
+        Raises
+        ------
+        InputError
+            Bytes that do not fit the message definition, naming the topic and time.
+        """
+        try:
+            return self._reader.decode(conn, raw)
+        except Exception as exc:  # a damaged message: its bytes do not fit the definition
+            raise InputError(
+                self._owner([conn]),
+                f"message on {shown(conn.topic)} at {(t_ns - self.start_ns) / 1e9:.3f} s "
+                f"cannot be decoded as {conn.msgtype} "
+                f"({one_line(str(exc)) or type(exc).__name__})",
+            ) from exc
+
+    def wire(self, conn: Connection) -> tuple[str, Typestore] | None:
+        """How a connection's raw messages are serialised when rosbags decodes them from bytes:
+        ``("ros1" or "cdr", the typestore decoding them)``; None for other readers (MCAP files
+        read with ``mcap``, CARMEN logs), whose raw items only :meth:`decode` reads."""
+        if isinstance(self._reader, _Rosbags):
+            return ("cdr" if self._reader.is2 else "ros1"), self._reader.typestore
+        return None
 
     def count(
         self,

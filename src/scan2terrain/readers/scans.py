@@ -45,9 +45,22 @@ from scan2terrain.readers.foxglove import LASER_SCAN as FOXGLOVE_LASER_SCAN
 from scan2terrain.readers.foxglove import Grid as FoxgloveGrid
 from scan2terrain.readers.foxglove import LaserScan as FoxgloveLaserScan
 from scan2terrain.readers.foxglove import PointCloud as FoxglovePointCloud
-from scan2terrain.readers.laserscan import laserscan_points
+from scan2terrain.readers.laserscan import (
+    BlockPoints,
+    ScanBlock,
+    block_points,
+    laserscan_points,
+    raw_laserscans,
+    wire_layout_known,
+)
 from scan2terrain.readers.mapserver import extent_problem
-from scan2terrain.readers.messages import MAP_TYPES, ODOMETRY_TYPES, TF_TYPES, resolve_time
+from scan2terrain.readers.messages import (
+    LASER_SCAN,
+    MAP_TYPES,
+    ODOMETRY_TYPES,
+    TF_TYPES,
+    resolve_time,
+)
 from scan2terrain.readers.messages import SCAN_TYPES as _SCAN_TYPES
 from scan2terrain.readers.pointcloud2 import pointcloud2_xyz
 from scan2terrain.readers.poses import matrices_to_quaternions, pose6
@@ -64,6 +77,8 @@ from scan2terrain.types import (
 )
 
 if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
+
     from scan2terrain.readers.bag import Bag
 
 #: Scans decoded and posed together (one vectorised pose lookup per batch).
@@ -494,64 +509,226 @@ def posed_scans(
     bag: Bag, cfg: ScansConfig, plan: BagPlan, counts: ScanCounts, *, max_range: float = -1.0
 ) -> Iterator[Scan]:
     """Stream the plan's scans in the fixed frame (see the module docstring); ``counts`` is
-    updated as they go. ``max_range`` (metres, < 0: none) also cuts PointCloud2 beams."""
+    updated as they go. ``max_range`` (metres, < 0: none) also cuts PointCloud2 beams.
+
+    LaserScans are read, computed and posed a batch at a time (:class:`_Batch`): their raw
+    bytes as numpy views where rosbags reads them from bytes (ROS1 and CDR), the points of all
+    scans of one beam count in one numpy pass and posed by one stacked matmul; each Scan's
+    points, origin and rotation are views into the batch's arrays. The same scans, bit for bit,
+    as one rosbags object, one :func:`~scan2terrain.readers.laserscan.laserscan_points` and one
+    matmul per message, and the same refusals in the same order."""
     poser = _Poser(bag, cfg, plan)
-    batch: list[tuple[str, int, Any]] = []
-    for item in bag.messages(plan.scan_topics, plan.start_ns, plan.end_ns):
-        batch.append(item)
-        if len(batch) == BATCH:
-            yield from _pose_batch(batch, poser, counts, max_range)
-            batch = []
+    batch: list[tuple[Connection, int, Any]] = []
+    raw = bag.raw_messages(plan.scan_topics, plan.start_ns, plan.end_ns)
+    while True:
+        try:
+            for item in raw:
+                batch.append(item)
+                if len(batch) == BATCH:
+                    break
+            else:
+                break
+        except InputError:  # unreadable data: a message read before it may be refused first
+            _Batch(bag, batch, max_range)
+            raise
+        yield from _Batch(bag, batch, max_range).posed(poser, counts)
+        batch = []
     if batch:
-        yield from _pose_batch(batch, poser, counts, max_range)
+        yield from _Batch(bag, batch, max_range).posed(poser, counts)
 
 
-def _pose_batch(
-    batch: list[tuple[str, int, Any]], poser: _Poser, counts: ScanCounts, max_range: float
-) -> Iterator[Scan]:
-    by_topic: dict[str, list[tuple[int, Any]]] = {}
-    for topic, t_ns, msg in batch:
-        by_topic.setdefault(topic, []).append((t_ns, msg))
-    out: list[Scan] = []
-    for topic, items in by_topic.items():
-        stamps = np.array([_stamp(m, t) for t, m in items], dtype=np.int64)
-        valid, rot, trans = poser.poses(topic, stamps)
-        for j, (t_ns, msg) in enumerate(items):
-            counts.messages += 1
-            if not valid[j]:
-                counts.unposed += 1
-                if not counts.first_unposed:
-                    counts.first_unposed = f"{topic} at stamp {stamps[j] / 1e9:.3f} s: " + (
-                        poser.why_not(topic, int(stamps[j]))
-                    )
+class _Batch:
+    """:data:`BATCH` scan messages in bag order, decoded (see :func:`posed_scans`): LaserScans
+    the fast path reads from bytes as rows of :class:`~scan2terrain.readers.laserscan.RawScans`,
+    the rest decoded by the bag one by one (in bag order, so the first undecodable message is
+    the one refused, as when every message was decoded); decoded LaserScans (a CARMEN log's, a
+    layout of one message) are stacked by beam count and computed together too."""
+
+    def __init__(
+        self, bag: Bag, items: list[tuple[Connection, int, Any]], max_range: float
+    ) -> None:
+        self.bag, self.items = bag, items
+        self.given_range = max_range  # what PointCloud2 and Foxglove scans are cut at
+        self.max_range = max_range if max_range > 0 else None
+        n = len(items)
+        self.msgs: list[Any] = [None] * n
+        self.stamps = np.zeros(n, dtype=np.int64)
+        self.block_of = np.full(n, -1, dtype=np.intp)  # which block holds each LaserScan
+        self.row_of = np.zeros(n, dtype=np.intp)
+        self.blocks: list[tuple[NDArray[np.intp], ScanBlock]] = []
+        done = np.zeros(n, dtype=bool)
+        for wire, idx in self._wires().items():
+
+            def template(k: int, idx: NDArray[np.intp] = idx) -> Any | None:
+                return self._template(int(idx[k]))
+
+            for group in raw_laserscans([items[i][2] for i in idx], wire[0], template):
+                where = idx[group.index]
+                done[where] = True
+                self.stamps[where] = group.stamps_ns
+                self._add_block(where, group.block)
+        by_beams: dict[int, list[int]] = {}
+        for i, (conn, t_ns, raw) in enumerate(items):
+            if done[i]:
                 continue
-            r_j, t_j = rot[j], trans[j]
-            try:
+            msg: Any = self.msgs[i] if self.msgs[i] is not None else bag.decode(conn, t_ns, raw)
+            self.msgs[i] = msg
+            self.stamps[i] = _stamp_ns(msg)
+            if _is_laserscan(msg):
+                by_beams.setdefault(np.asarray(msg.ranges).size, []).append(i)
+        for rows in by_beams.values():
+            where = np.array(rows, dtype=np.intp)
+            self._add_block(where, ScanBlock.of([self.msgs[i] for i in rows]))
+        bag_ns = np.array([t for _, t, _ in items], dtype=np.int64)
+        self.stamps = np.where(self.stamps > 0, self.stamps, bag_ns)
+
+    def _wires(self) -> dict[tuple[str, int], NDArray[np.intp]]:
+        """The LaserScan messages rosbags reads from bytes of a known layout, by encoding and
+        typestore."""
+        out: dict[tuple[str, int], list[int]] = {}
+        known: dict[int, bool] = {}
+        for i, (conn, _, _) in enumerate(self.items):
+            if conn.msgtype != LASER_SCAN:
+                continue
+            if (wire := self.bag.wire(conn)) is None:
+                continue
+            kind, store = wire
+            key = id(conn)
+            if key not in known:
+                known[key] = wire_layout_known(kind, store, conn.msgtype)
+            if known[key]:
+                out.setdefault((kind, id(store)), []).append(i)
+        return {k: np.array(v, dtype=np.intp) for k, v in out.items()}
+
+    def _template(self, i: int) -> Any | None:
+        conn, t_ns, raw = self.items[i]
+        try:
+            self.msgs[i] = self.bag.decode(conn, t_ns, raw)
+        except InputError:
+            return None
+        return self.msgs[i]
+
+    def _add_block(self, where: NDArray[np.intp], block: ScanBlock) -> None:
+        self.block_of[where] = len(self.blocks)
+        self.row_of[where] = np.arange(len(where))
+        self.blocks.append((where, block))
+
+    def posed(self, poser: _Poser, counts: ScanCounts) -> Iterator[Scan]:
+        """The batch's scans posed, sorted by stamp (stable), as :func:`posed_scans` yields."""
+        n = len(self.items)
+        by_topic: dict[str, list[int]] = {}
+        for i, (conn, _, _) in enumerate(self.items):
+            by_topic.setdefault(conn.topic, []).append(i)
+        valid = np.zeros(n, dtype=bool)
+        rot = np.empty((n, 3, 3))
+        trans = np.empty((n, 3))
+        for topic, rows in by_topic.items():
+            where = np.array(rows, dtype=np.intp)
+            v, r, t = poser.poses(topic, self.stamps[where])
+            valid[where], rot[where], trans[where] = v, r, t
+        laid = self._lay(valid, rot, trans)
+        out: list[Scan] = []
+        for topic, rows in by_topic.items():
+            for i in rows:
+                counts.messages += 1
+                stamp = int(self.stamps[i])
+                if not valid[i]:
+                    counts.unposed += 1
+                    if not counts.first_unposed:
+                        counts.first_unposed = f"{topic} at stamp {stamp / 1e9:.3f} s: " + (
+                            poser.why_not(topic, stamp)
+                        )
+                    continue
+                scan = self._scan(i, topic, laid, rot[i], trans[i], poser)
+                if scan is None:
+                    counts.empty += 1
+                    continue
+                out.append(scan)
+        out.sort(key=lambda s: s.stamp_ns)
+        yield from out
+
+    def _lay(
+        self, valid: NDArray[np.bool_], rot: NDArray[np.float64], trans: NDArray[np.float64]
+    ) -> list[tuple[BlockPoints, NDArray[np.float64], NDArray[np.int64]]]:
+        """Per block: its points, every kept reading of its posed scans in the fixed frame (in
+        scan and reading order), and each scan's first row in them."""
+        laid = []
+        for where, block in self.blocks:
+            bp = block_points(block, self.max_range)
+            keep = bp.keep & valid[where][:, None]
+            # One BLAS gemm per scan, as the matmul of one scan's points did: the same bits.
+            world = np.matmul(bp.points, np.ascontiguousarray(rot[where].transpose(0, 2, 1)))
+            world += trans[where][:, None, :]
+            starts = np.zeros(len(where) + 1, dtype=np.int64)
+            np.cumsum(keep.sum(axis=1), out=starts[1:])
+            laid.append((bp, world[keep], starts))
+        return laid
+
+    def _scan(
+        self,
+        i: int,
+        topic: str,
+        laid: list[tuple[BlockPoints, NDArray[np.float64], NDArray[np.int64]]],
+        r_j: NDArray[np.float64],
+        t_j: NDArray[np.float64],
+        poser: _Poser,
+    ) -> Scan | None:
+        """Message ``i`` posed at ``r_j``, ``t_j`` (None: no points), or its refusal."""
+        stamp = int(self.stamps[i])
+        b = int(self.block_of[i])
+        try:
+            if b >= 0:
+                bp, world, starts = laid[b]
+                row = int(self.row_of[i])
+                if bp.refused[row]:  # laserscan_points says why
+                    laserscan_points(self._msg(i), self.max_range)
+                    raise AssertionError("a LaserScan refused in bulk was accepted alone")
+                pts = world[starts[row] : starts[row + 1]]
+                mr = float(bp.cutoff[row])
+                if len(pts) == 1:  # numpy takes one point through gemv: as it did
+                    local = bp.points[row][bp.keep[row]]
+                    pts = local @ np.ascontiguousarray(r_j.T)
+                    pts += t_j
+            else:
+                msg = self.msgs[i]
                 if isinstance(msg, (FoxglovePointCloud, FoxgloveLaserScan)):
-                    pts, mr = msg.points(max_range)
+                    local_pts, mr = msg.points(self.given_range)
                     if (local := msg.local_pose) is not None:  # the scan's origin in its frame
                         r_j, t_j = r_j @ local.rotation, r_j @ local.translation + t_j
-                elif hasattr(msg, "ranges"):
-                    pts, mr = laserscan_points(msg, max_range if max_range > 0 else None)
                 else:
-                    pts, mr = pointcloud2_xyz(msg), max_range
-            except InputError as exc:  # about the message alone: name the bag and the message
-                if exc.path is not None:
-                    raise
-                at = (t_ns - poser.start_ns) / 1e9
-                raise InputError(
-                    poser.source, f"message on {topic} at {at:.3f} s: {exc.problem}"
-                ) from exc
-            if len(pts) == 0:
-                counts.empty += 1
-                continue
-            world = pts @ np.ascontiguousarray(r_j.T)  # a transposed view is a slow matmul
-            world += t_j
-            heading = math.atan2(float(r_j[1, 0]), float(r_j[0, 0]))
-            origin = np.array(t_j, dtype=np.float64)
-            out.append(Scan(world, origin, mr, int(stamps[j]), topic, heading, np.array(r_j)))
-    out.sort(key=lambda s: s.stamp_ns)
-    yield from out
+                    local_pts, mr = pointcloud2_xyz(msg), self.given_range
+                if len(local_pts) == 0:
+                    return None
+                pts = local_pts @ np.ascontiguousarray(r_j.T)  # a transposed view is slow
+                pts += t_j
+        except InputError as exc:  # about the message alone: name the bag and the message
+            if exc.path is not None:
+                raise
+            at = (self.items[i][1] - poser.start_ns) / 1e9
+            raise InputError(
+                poser.source, f"message on {topic} at {at:.3f} s: {exc.problem}"
+            ) from exc
+        if len(pts) == 0:
+            return None
+        heading = math.atan2(float(r_j[1, 0]), float(r_j[0, 0]))
+        return Scan(pts, t_j, mr, stamp, topic, heading, r_j)
+
+    def _msg(self, i: int) -> Any:
+        if self.msgs[i] is None:
+            conn, t_ns, raw = self.items[i]
+            self.msgs[i] = self.bag.decode(conn, t_ns, raw)
+        return self.msgs[i]
+
+
+def _is_laserscan(msg: Any) -> bool:
+    """A LaserScan :func:`laserscan_points` reads (rosbags', a CARMEN log's), not Foxglove's."""
+    return not isinstance(msg, (FoxglovePointCloud, FoxgloveLaserScan)) and hasattr(msg, "ranges")
+
+
+def _stamp_ns(msg: Any) -> int:
+    """A message's header stamp in ns (0 or less: none, :func:`_stamp` takes bag time)."""
+    st = msg.header.stamp
+    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
 
 
 def map_message(bag: Bag, plan: BagPlan, index: int) -> tuple[Any, int]:
