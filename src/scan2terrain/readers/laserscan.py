@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from rosbags.interfaces import Nodetype
 
 from scan2terrain.errors import InputError
 
@@ -211,6 +210,8 @@ class RawScans:
 
 
 def _flat_fields(typestore: Typestore, msgtype: str) -> tuple[str, ...]:
+    from rosbags.interfaces import Nodetype  # noqa: PLC0415  (rosbags only once a bag is read)
+
     out: list[str] = []
     for name, (node, sub) in typestore.get_msgdef(msgtype).fields:
         if node == Nodetype.NAME and isinstance(sub, str):
