@@ -55,6 +55,7 @@ KERNEL_MODULES = (
     "scan2terrain.octree._raycast",
     "scan2terrain.octree._raybox",
     "scan2terrain.octree._batch",
+    "scan2terrain.octree._waves",
     "scan2terrain.octree._sparse",
     "scan2terrain.octree._points",
     "scan2terrain.octree._group",
@@ -188,11 +189,13 @@ def _warm_scans() -> None:
     far = scan.copy()
     far[:8] = 30.0 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     tree.insert_scan(far, np.zeros(3), max_range=-1.0)
-    # Many small scans in one call (a laser log's path): bag2world's argument types.
+    # Many small scans in one call (a laser log's path: waves on every core, or one serial
+    # call), with bag2world's argument types.
     pts = scan[:720].astype(np.float32)
     origins = np.array([[0.0, 0.0, 0.0], [0.2, 0.2, 0.2]])
     offsets = np.array([0, 720, 1440])
     tree.insert_scans(np.concatenate([pts, pts + 0.2]), offsets, origins, np.array([-1.0, 3.0]))
+    tree.insert_scans(pts, offsets[:2], origins[:1], np.array([3.0]))  # one scan: serial
     keys, occupied = tree.occupied_and_free()
     bt_bytes(resolution=tree.resolution, keys=keys, occupied=occupied)
     # The dense store's block table grows only past thousands of dense blocks, more than these

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from scan2terrain._numba import numba
 from scan2terrain.config import load_config
 from scan2terrain.errors import InputError
+from scan2terrain.octree import _waves
 from scan2terrain.octree.tree import PARALLEL_MIN_RAYS, InsertStats, VoxelOctree
 from scan2terrain.readers.bag import open_bag
 from scan2terrain.readers.scans import plan_bag, posed_scans
@@ -265,3 +266,38 @@ def test_empty_batch_and_empty_scans_change_nothing() -> None:
     assert st == InsertStats(0, 0, 0, 0, 0, 0)
     st = tree.insert_scans(np.zeros((0, 3)), np.array([0, 0, 0]), np.zeros((2, 3)))
     assert st.points == 0 and len(tree) == 0
+
+
+def test_a_scan_too_large_for_its_wave_scratch_goes_the_serial_way(threads: None) -> None:
+    """Waves (two threads) cast each scan into a scratch of _waves.ROWS blocks; a scan of long
+    beams in every direction needs more, and is cast the serial way in its place: the same
+    voxels as one thread's serial path and as insert_scan."""
+    rng = np.random.default_rng(11)
+    parts, origins = [], []
+    for i in range(5):
+        d = rng.normal(size=(1500 if i in (1, 3) else 300, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.array([0.3 * i, 0.1, 0.05])
+        parts.append(o + d * (25.0 if i in (1, 3) else 3.0))
+        origins.append(o)
+    points = np.concatenate(parts).astype(np.float32)
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
+    data = (points, offsets, np.array(origins), np.full(5, -1.0))
+    reference, ref_stats = one_at_a_time(0.05, data)
+    assert reference.n_blocks > 2 * _waves.ROWS  # scans 1 and 3 overflow a scratch
+    serial = VoxelOctree._insert_serial
+    calls: list[int] = []
+
+    def counted(self: VoxelOctree, *args: Any) -> None:
+        calls.append(len(args[2]))
+        serial(self, *args)
+
+    for n_threads in (2, 1):
+        numba.set_num_threads(n_threads)
+        calls.clear()
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(VoxelOctree, "_insert_serial", counted)
+            tree, stats = batched(0.05, data, [])
+        assert_same_voxels(reference, tree)
+        assert stats == ref_stats
+        assert calls == ([1, 1] if n_threads == 2 else [5])  # the two overflowed; all five

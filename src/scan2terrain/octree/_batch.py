@@ -9,11 +9,12 @@ one log-odds update per voxel it marked, hits winning, before the next scan star
 voxel is updated at most once per scan, in the recording's order, and the values are the ones
 one insert_scan per scan gives, bit for bit.
 
-Serial, so the answer cannot depend on the number of threads; the caller overlaps it with reading
-the next batch instead. A scan's blocks are found through a small direct-mapped cache of block
--> slot in front of the hash table, its entries valid for the scan that wrote them (a block's
-first touch in a scan goes through the table, which records it as touched): a ray's next
-block is most often one an earlier ray of the same scan entered.
+Serial: the path of one thread, and of a scan too large for _waves.py's scratch (with more
+threads, insert_scans casts scans side by side in waves, with the same result). A scan's blocks
+are found through a small direct-mapped cache of block -> slot in front of the hash table, its
+entries valid for the scan that wrote them (a block's first touch in a scan goes through the
+table, which records it as touched): a ray's next block is most often one an earlier ray of the
+same scan entered.
 
 The kernel is resumable: when the store is full it stops with a NEED_* status and ``state`` (the
 scan, its phase, the ray) says where to go on once tree.py has grown the arrays.

@@ -25,7 +25,16 @@ from numpy.typing import NDArray
 
 from scan2terrain._numba import numba
 from scan2terrain.errors import InputError
-from scan2terrain.octree import _batch, _group, _points, _raybox, _raycast, _sparse, _table
+from scan2terrain.octree import (
+    _batch,
+    _group,
+    _points,
+    _raybox,
+    _raycast,
+    _sparse,
+    _table,
+    _waves,
+)
 from scan2terrain.octree import _kernels as K
 from scan2terrain.octree.keys import KEY_OFFSET, key_to_coord
 
@@ -133,6 +142,9 @@ class VoxelOctree:
         self._st = np.zeros(16 * _sparse.NREG, dtype=np.int64)
         self._sparse_counts = np.zeros((_sparse.NREG, 2), dtype=np.int64)
         self._lut, self._max_hits = self._hit_values()
+        # Many small scans on every core (_waves.py): the scans' scratch, and the waves cast.
+        self._waves: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.uint64]] | None = None
+        self._wave = 0
         # Without a saturating hit count that fits the voxel table (a model needing more than
         # 255 hits to reach clamp_max), every block is dense.
         self._dense_min = DENSE_MIN if self._max_hits > 0 else 0
@@ -210,9 +222,11 @@ class VoxelOctree:
 
         Scan s is ``points[offsets[s]:offsets[s + 1]]`` seen from ``origins[s]``, its beams cut
         at ``max_ranges[s]`` (one number: every scan's). Scans of fewer than PARALLEL_MIN_RAYS
-        points go through one serial kernel call per run of them (_batch.py: each scan still
-        updates each voxel once, occupied winning, before the next starts); larger ones through
-        insert_scan. Returns the stats summed over the scans.
+        points go in runs: with several threads in waves of two scans a thread, cast side by
+        side and applied in order (_waves.py), with one in one serial call (_batch.py); either
+        way each scan updates each voxel once, occupied winning, before the next, and the values
+        are the same. Larger scans go through insert_scan. Returns the stats summed over the
+        scans.
         """
         pts = self._points_any(points)
         off = np.asarray(offsets, dtype=np.int64).reshape(-1)
@@ -273,16 +287,84 @@ class VoxelOctree:
             return
         local = np.ascontiguousarray(pts[off[0] : off[-1]])
         rel = np.ascontiguousarray(off - off[0])
+        if numba.get_num_threads() > 1 and len(org32) > 1:
+            self._insert_waves(local, rel, org32, np.ascontiguousarray(mr), total)
+            return
+        self._insert_serial(local, rel, org32, np.ascontiguousarray(mr), total)
+
+    def _insert_serial(
+        self,
+        local: NDArray[np.float32],
+        rel: NDArray[np.int64],
+        org32: NDArray[np.float32],
+        mr: NDArray[np.float64],
+        total: NDArray[np.int64],
+    ) -> None:
         state = np.zeros(4, dtype=np.int64)
         cache = np.full((_batch.CACHE, 4), -1, dtype=np.int64)  # block id, slot, scan
         while True:
             status = _batch.insert_batch(
-                local, rel, org32, np.ascontiguousarray(mr), self.resolution, self._model,
-                self._values, state, total, cache, self._storage(),
+                local, rel, org32, mr, self.resolution, self._model, self._values, state, total,
+                cache, self._storage(),
             )  # fmt: skip
             if status == _table.DONE:
                 return
             self._grow(int(status))
+
+    def _insert_waves(
+        self,
+        local: NDArray[np.float32],
+        rel: NDArray[np.int64],
+        org32: NDArray[np.float32],
+        mr: NDArray[np.float64],
+        total: NDArray[np.int64],
+    ) -> None:
+        """The scans in waves of two per thread (see _waves.py): cast side by side, applied in
+        order; a scan that overflows its scratch goes the serial way, in its place."""
+        slots = 2 * numba.get_num_threads()
+        if self._waves is None or self._waves[0].shape[0] < slots:
+            # Zeroed memory: pages are taken only as rows are used. Kept by the tree (a table
+            # entry stamped by an earlier wave is stale).
+            self._waves = (
+                np.zeros((slots, _waves.TABLE, 3), dtype=np.int64),
+                np.zeros((slots, _waves.ROWS), dtype=np.int64),
+                np.zeros((slots, _waves.ROWS, 16), dtype=np.uint64),
+            )
+            self._wave = 0
+        scratch = self._waves
+        out = np.zeros((slots, 4), dtype=np.int64)
+        at = np.zeros(2, dtype=np.int64)
+        hits = np.zeros(2, dtype=np.int64)
+        for first in range(0, len(org32), slots):
+            n = min(slots, len(org32) - first)
+            self._wave += 1
+            marks = np.full(slots, self._wave, dtype=np.int64)
+            with numba.parallel_chunksize(1):
+                _waves.cast_wave(local, rel, org32, mr, first, n, self.resolution, scratch, marks,
+                                 out)  # fmt: skip
+            at[:] = 0
+            while True:
+                storage = self._storage()
+                status = _waves.apply_wave(
+                    n, out, scratch, at, self._values, self._model, storage[1], storage[2],
+                    storage[3], storage[4], storage[5], hits,
+                )  # fmt: skip
+                if status == _table.DONE:
+                    break
+                if status < 0:  # overflowed: this scan the serial way, then the rest
+                    s = first + int(at[0])
+                    self._insert_serial(
+                        np.ascontiguousarray(local[rel[s] : rel[s + 1]]),
+                        np.array([0, rel[s + 1] - rel[s]]), org32[s : s + 1], mr[s : s + 1],
+                        total,
+                    )  # fmt: skip
+                    at[0] += 1
+                    at[1] = 0
+                else:
+                    self._grow(int(status))
+            done = out[:n, 0] >= 0
+            total[:3] += out[:n][done, 1:].sum(axis=0)
+        total[3:5] += hits
 
     def _cast_box(
         self, o32: NDArray[np.float32], ends: NDArray[np.float32], kind: NDArray[np.int8]
