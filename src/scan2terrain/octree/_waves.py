@@ -172,3 +172,51 @@ def apply_wave(
         at[0] = j + 1
         at[1] = 0
     return DONE
+
+
+@nb.njit(**JIT)
+def insert_waves(
+    points, offsets, origins, max_ranges, resolution, scratch, out, state, values, model,
+    block_xyz, stamp, table_keys, table_slots, counts, stats,
+):  # fmt: skip
+    """Every scan in waves of ``out.shape[0]``, from where ``state`` = (first scan of the wave,
+    phase: 0 cast it / 1 apply it, scan and row reached, the last wave's stamp) says, in one
+    call (no Python, and no GIL, between waves). Returns DONE, a NEED_* status (grow, call
+    again), or -1: scan ``state[0] + state[2]`` overflowed its scratch (the caller inserts it
+    the serial way, moves state[2] past it, sets state[3] = 0 and calls again). ``stats``:
+    rays, beams cut, end points outside the key range, hits, misses."""
+    n_scans = offsets.shape[0] - 1
+    slots = out.shape[0]
+    marks = np.empty(slots, dtype=np.int64)
+    at = np.empty(2, dtype=np.int64)
+    hits = np.zeros(2, dtype=np.int64)
+    while state[0] < n_scans:
+        first = state[0]
+        n = min(slots, n_scans - first)
+        if state[1] == 0:
+            state[4] += 1
+            marks[:] = state[4]
+            cast_wave(points, offsets, origins, max_ranges, first, n, resolution, scratch, marks,
+                      out)  # fmt: skip
+            state[1] = 1
+            state[2] = 0
+            state[3] = 0
+        at[0], at[1] = state[2], state[3]
+        hits[:] = 0
+        status = apply_wave(
+            n, out, scratch, at, values, model, block_xyz, stamp, table_keys, table_slots,
+            counts, hits,
+        )  # fmt: skip
+        state[2], state[3] = at[0], at[1]
+        stats[3] += hits[0]
+        stats[4] += hits[1]
+        if status != DONE:
+            return status
+        for j in range(n):
+            if out[j, 0] >= 0:
+                stats[0] += out[j, 1]
+                stats[1] += out[j, 2]
+                stats[2] += out[j, 3]
+        state[0] = first + n
+        state[1] = 0
+    return DONE

@@ -331,40 +331,29 @@ class VoxelOctree:
                 np.zeros((slots, _waves.ROWS, 16), dtype=np.uint64),
             )
             self._wave = 0
-        scratch = self._waves
         out = np.zeros((slots, 4), dtype=np.int64)
-        at = np.zeros(2, dtype=np.int64)
-        hits = np.zeros(2, dtype=np.int64)
-        for first in range(0, len(org32), slots):
-            n = min(slots, len(org32) - first)
-            self._wave += 1
-            marks = np.full(slots, self._wave, dtype=np.int64)
-            with numba.parallel_chunksize(1):
-                _waves.cast_wave(local, rel, org32, mr, first, n, self.resolution, scratch, marks,
-                                 out)  # fmt: skip
-            at[:] = 0
-            while True:
+        state = np.array([0, 0, 0, 0, self._wave], dtype=np.int64)
+        while True:
+            with numba.parallel_chunksize(1):  # scans handed to the threads as they ask
                 storage = self._storage()
-                status = _waves.apply_wave(
-                    n, out, scratch, at, self._values, self._model, storage[1], storage[2],
-                    storage[3], storage[4], storage[5], hits,
+                status = _waves.insert_waves(
+                    local, rel, org32, mr, self.resolution, self._waves, out, state,
+                    self._values, self._model, storage[1], storage[2], storage[3], storage[4],
+                    storage[5], total,
                 )  # fmt: skip
-                if status == _table.DONE:
-                    break
-                if status < 0:  # overflowed: this scan the serial way, then the rest
-                    s = first + int(at[0])
-                    self._insert_serial(
-                        np.ascontiguousarray(local[rel[s] : rel[s + 1]]),
-                        np.array([0, rel[s + 1] - rel[s]]), org32[s : s + 1], mr[s : s + 1],
-                        total,
-                    )  # fmt: skip
-                    at[0] += 1
-                    at[1] = 0
-                else:
-                    self._grow(int(status))
-            done = out[:n, 0] >= 0
-            total[:3] += out[:n][done, 1:].sum(axis=0)
-        total[3:5] += hits
+            if status == _table.DONE:
+                break
+            if status < 0:  # overflowed: this scan the serial way, then the rest of its wave
+                s = int(state[0] + state[2])
+                self._insert_serial(
+                    np.ascontiguousarray(local[rel[s] : rel[s + 1]]),
+                    np.array([0, rel[s + 1] - rel[s]]), org32[s : s + 1], mr[s : s + 1], total,
+                )  # fmt: skip
+                state[2] += 1
+                state[3] = 0
+            else:
+                self._grow(int(status))
+        self._wave = int(state[4])
 
     def _cast_box(
         self, o32: NDArray[np.float32], ends: NDArray[np.float32], kind: NDArray[np.int8]
