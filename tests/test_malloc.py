@@ -9,7 +9,7 @@ import sys
 from scan2terrain._malloc import give_back_freed_memory
 
 #: A child that frees a 16 MB array (glibc then raises its mmap threshold to 16 MB), then
-#: allocates 200 arrays of 600 KB, each followed by a small object it keeps, frees the arrays
+#: allocates 100 arrays of 1.2 MB, each followed by a small object it keeps, frees the arrays
 #: and prints its RSS in MB: from the heap, the small objects pin the memory freed.
 CHILD = """
 import sys, numpy as np
@@ -22,8 +22,8 @@ def rss():
 big = np.ones(2_000_000)
 del big
 parts, kept = [], []
-for _ in range(200):
-    parts.append(np.ones(75_000))
+for _ in range(100):
+    parts.append(np.ones(150_000))
     kept.append(bytearray(4000))
 del parts
 print(rss())
