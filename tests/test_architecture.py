@@ -1,10 +1,10 @@
 """The picture DESIGN.md draws holds in the code: no import circle between scan2terrain modules
 (function-local and type-checking imports count: a circle hidden in a function is still one),
 a stage never imports a later one (readers -> slam -> octree -> grids -> filters -> geometry ->
-replay -> exporters), the shared modules (types, errors, config, fileio, texts, _numba) import
-no stage and no composer, and every module is in one layer: shared, a stage, or a composer (world/,
-steps.py and checks.py below commands/, below cli/ and api.py, the Python API; the package's
-__init__ on top, re-exporting the API, imported by no module)."""
+replay -> exporters), the shared modules (types, errors, config, fileio, texts, _numba,
+_malloc) import no stage and no composer, and every module is in one layer: shared, a stage,
+or a composer (world/, steps.py and checks.py below commands/, below cli/ and api.py, the
+Python API; the package's __init__ on top, re-exporting the API, imported by no module)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent / "src" / "scan2terrain"
 STAGES = ["readers", "slam", "octree", "grids", "filters", "geometry", "replay", "exporters"]
 COMPOSERS = {"commands", "cli", "api", "steps", "world", "checks", "warmup"}
-SHARED = {"types", "errors", "config", "fileio", "texts", "_numba"}
+SHARED = {"types", "errors", "config", "fileio", "texts", "_numba", "_malloc"}
 #: Composers, lowest first: each imports only shared modules, stages and lower composers.
 LAYERS = [
     {"world"},

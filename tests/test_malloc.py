@@ -3,6 +3,7 @@ memory freed goes back to the system."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -37,10 +38,17 @@ def test_glibc_takes_the_settings() -> None:
 
 def test_memory_freed_goes_back() -> None:
     def rss_after(mode: str) -> float:
+        # glibc's defaults, whatever the suite runs under: no allocator tunables, and no
+        # coverage started in the child (pytest-cov's COV_CORE_* would start it).
+        env = {
+            k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_", "COV_"))
+        }
         out = subprocess.run(
-            [sys.executable, "-c", CHILD, mode], capture_output=True, text=True, check=True
-        )
+            [sys.executable, "-c", CHILD, mode], capture_output=True, text=True, check=True,
+            env=env,
+        )  # fmt: skip
         return float(out.stdout)
 
-    kept, given = rss_after("default"), rss_after("set")
-    assert kept - given > 60, (kept, given)  # glibc's defaults keep the 120 MB, ours do not
+    # 120 MB were freed: with the settings they go back (glibc's defaults keep them here,
+    # 140 MB, though not always: whether they do is glibc's heuristics, not asserted).
+    assert rss_after("set") < 60
