@@ -39,9 +39,9 @@ TABLE = ROWS * 2
 
 
 @nb.njit(inline="always", **JIT)
-def _row(tab, rows_key, n, bk, mark):
-    """The scratch row of block ``bk`` for the scan stamped ``mark`` (added if new, its words
-    zeroed by the caller): returns (row, rows now used); -1 when the scratch is full."""
+def _row(tab, rows_key, rows_bits, n, bk, mark):
+    """The scratch row of block ``bk`` for the scan stamped ``mark`` (added, its words zeroed,
+    if new): returns (row, rows now used); -1 when the scratch is full."""
     mask = TABLE - 1
     h = np.int64((np.uint64(bk) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(20)) & mask
     while True:
@@ -52,6 +52,7 @@ def _row(tab, rows_key, n, bk, mark):
             tab[h, 1] = n
             tab[h, 2] = mark
             rows_key[n] = bk
+            rows_bits[n, :] = 0
             return n, n + 1
         if tab[h, 0] == bk:
             return tab[h, 1], n
@@ -72,12 +73,9 @@ def _cast_one(pts, origin, max_range, resolution, tab, rows_key, rows_bits, mark
         kx = coord_to_key(np.float64(ends[i, 0]), res_factor)
         ky = coord_to_key(np.float64(ends[i, 1]), res_factor)
         kz = coord_to_key(np.float64(ends[i, 2]), res_factor)
-        r, m = _row(tab, rows_key, n, block_id(kx >> 3, ky >> 3, kz >> 3), mark)
+        r, n = _row(tab, rows_key, rows_bits, n, block_id(kx >> 3, ky >> 3, kz >> 3), mark)
         if r < 0:
             return -1
-        if m > n:
-            rows_bits[r, :] = 0
-            n = m
         local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
         rows_bits[r, local >> 6] |= np.uint64(1) << np.uint64(local & 63)
     ox, oy, oz = origin[0], origin[1], origin[2]
@@ -91,12 +89,9 @@ def _cast_one(pts, origin, max_range, resolution, tab, rows_key, rows_bits, mark
             bk = block_id(kx >> 3, ky >> 3, kz >> 3)
             if bk != ck:
                 ck = bk
-                r, m = _row(tab, rows_key, n, bk, mark)
+                r, n = _row(tab, rows_key, rows_bits, n, bk, mark)
                 if r < 0:
                     return -1
-                if m > n:
-                    rows_bits[r, :] = 0
-                    n = m
             local = (kx & 7) | ((ky & 7) << 3) | ((kz & 7) << 6)
             rows_bits[r, 8 + (local >> 6)] |= np.uint64(1) << np.uint64(local & 63)
             kx, ky, kz, tx, ty, tz = dda_step(kx, ky, kz, tx, ty, tz, sx, sy, sz, ddx, ddy, ddz)

@@ -256,13 +256,23 @@ class VoxelOctree:
             if b > first:
                 self._insert_batch(pts, off[first : b + 1], org32[first:b], mr[first:b], total)
             if b < n:
-                st = self.insert_scan(pts[off[b] : off[b + 1]], org[b], max_range=float(mr[b]))
-                total += (st.points, st.beams_cut, st.out_of_range, st.hits, st.misses)
+                self._insert_one(pts[off[b] : off[b + 1]], org[b], float(mr[b]), total)
             first = b + 1
         return InsertStats(
             int(total[0]) + dropped, dropped, int(total[2]), int(total[1]), int(total[3]),
             int(total[4]),
         )  # fmt: skip
+
+    def _insert_one(
+        self,
+        pts: NDArray[np.float32],
+        origin: NDArray[np.floating],
+        max_range: float,
+        total: NDArray[np.int64],
+    ) -> None:
+        """One scan through insert_scan, its stats added to insert_scans' ``total``."""
+        st = self.insert_scan(pts, origin, max_range=max_range)
+        total += (st.points, st.beams_cut, st.out_of_range, st.hits, st.misses)
 
     def _in_key_range(self, xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Rows of finite coordinates in the key range, computed as checked_origin does."""
@@ -282,8 +292,7 @@ class VoxelOctree:
         blocks must adopt from, keeps them on insert_scan's path)."""
         if self._sparse_counts[:, 0].any():
             for s in range(len(org32)):
-                st = self.insert_scan(pts[off[s] : off[s + 1]], org32[s], max_range=float(mr[s]))
-                total += (st.points, st.beams_cut, st.out_of_range, st.hits, st.misses)
+                self._insert_one(pts[off[s] : off[s + 1]], org32[s], float(mr[s]), total)
             return
         local = np.ascontiguousarray(pts[off[0] : off[-1]])
         rel = np.ascontiguousarray(off - off[0])
